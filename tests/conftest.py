@@ -1,0 +1,27 @@
+"""Shared fixtures: the published reference models (skipped when ../shared is absent)."""
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from torchik import so3
+
+REPO = Path(__file__).resolve().parents[1]
+REFERENCE = REPO.parent / "shared" / "reference-models"
+
+
+def reference_urdf(name: str) -> Path:
+    path = REFERENCE / name
+    if not path.is_file():
+        pytest.skip(f"reference model {path} not available")
+    return path
+
+
+def random_configurations(model, batch: int, seed: int, joint_scale: float = 1.0):
+    """Random base poses and joint angles: p_B [B,3], R_B [B,3,3], s [B,n] (float64)."""
+    g = torch.Generator().manual_seed(seed)
+    p = torch.randn(batch, 3, generator=g, dtype=torch.float64)
+    R = so3.random_rotation((batch,), g)
+    s = joint_scale * torch.randn(batch, model.n_dof, generator=g, dtype=torch.float64)
+    return p, R, s

@@ -1,0 +1,84 @@
+"""The `torchik` command line. Exit codes: 0 ok, 2 bad input, 1 failure."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .errors import TorchikError
+
+EXAMPLES = """examples:
+  torchik models                          list the models with their DoF, links and limits
+  torchik models --links human48          also list each model's links and joint limits
+  torchik models --write models/          write human66.urdf and human48.urdf (subject 1)
+  torchik models --write out/ --height 1.85 --mass 80 --segment RightUpperArm=0.31
+"""
+
+
+def _models(args: argparse.Namespace) -> int:
+    from .models import MODELS, TRACKED_LINKS, HumanSubject, load_model, write_human_models
+
+    subject = HumanSubject(height=args.height, mass=args.mass, segment_lengths=dict(args.segment or []))
+    if args.write:
+        for path in write_human_models(args.write, subject):
+            print(f"wrote {path}")
+        return 0
+    names = MODELS if not args.links else [args.links]
+    for name in names:
+        model = load_model(name, None if name == "icub" else subject)
+        print(model.summary())
+        print(f"    tracked links ({len(TRACKED_LINKS[name])}): {', '.join(TRACKED_LINKS[name])}")
+        if args.links:
+            for joint, lo, hi in zip(model.joint_names, model.lower.tolist(), model.upper.tolist()):
+                print(f"    {joint:28s} [{lo:+.4f}, {hi:+.4f}] rad")
+            if model.linear_limits is not None:
+                for row in model.linear_limits.names:
+                    print(f"    coupled: {row}")
+    return 0
+
+
+def _segment(text: str) -> tuple[str, float]:
+    name, _, value = text.partition("=")
+    try:
+        return name, float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected SEGMENT=METRES, got {text!r}") from None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="torchik",
+        description="Real-time motion tracking of people and humanoids by dynamical inverse kinematics.",
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    models = sub.add_parser("models", help="list the built-in models, or write the human URDFs",
+                            epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    models.add_argument("--links", metavar="MODEL", choices=("human66", "human48", "icub"),
+                        help="show one model's joints and limits")
+    models.add_argument("--write", metavar="DIR", help="write human66.urdf and human48.urdf into DIR")
+    models.add_argument("--height", type=float, default=1.68, help="subject height in metres (default 1.68)")
+    models.add_argument("--mass", type=float, default=62.2, help="subject mass in kg (default 62.2)")
+    models.add_argument("--segment", type=_segment, action="append", metavar="NAME=METRES",
+                        help="a measured segment length, e.g. RightUpperArm=0.31 (repeatable)")
+    models.set_defaults(run=_models)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.run(args)
+    except TorchikError as exc:
+        print(f"torchik {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,160 @@
+"""Rotations as batched tensors: hat, vee, skew part, exponential and logarithm, projection.
+
+All functions take tensors with any leading batch shape `[...]` and keep it.
+Rotation matrices map a frame's coordinates to the world's (`p_world = R @ p_frame`).
+"""
+
+from __future__ import annotations
+
+import torch
+
+
+def hat(w: torch.Tensor) -> torch.Tensor:
+    """Skew-symmetric matrix of a vector, `hat(w) @ x == cross(w, x)`.
+
+    w: [..., 3] -> [..., 3, 3]
+    """
+    zero = torch.zeros_like(w[..., 0])
+    x, y, z = w.unbind(-1)
+    return torch.stack(
+        (zero, -z, y, z, zero, -x, -y, x, zero), dim=-1
+    ).reshape(w.shape[:-1] + (3, 3))
+
+
+def vee(S: torch.Tensor) -> torch.Tensor:
+    """Vector of a skew-symmetric matrix, inverse of `hat`; reads only the lower triangle.
+
+    S: [..., 3, 3] -> [..., 3]
+    """
+    return torch.stack((S[..., 2, 1], S[..., 0, 2], S[..., 1, 0]), dim=-1)
+
+
+def skew_part(A: torch.Tensor) -> torch.Tensor:
+    """sk(A) = (A - A^T) / 2.
+
+    A: [..., 3, 3] -> [..., 3, 3]
+    """
+    return 0.5 * (A - A.transpose(-1, -2))
+
+
+def skew_vee(A: torch.Tensor) -> torch.Tensor:
+    """sk(A)^vee, the vector of the skew-symmetric part of A (the method's orientation error).
+
+    For a rotation `A = exp(hat(theta * u))` this is `sin(theta) * u`.
+    A: [..., 3, 3] -> [..., 3]
+    """
+    return 0.5 * torch.stack(
+        (A[..., 2, 1] - A[..., 1, 2], A[..., 0, 2] - A[..., 2, 0], A[..., 1, 0] - A[..., 0, 1]), dim=-1
+    )
+
+
+def exp(w: torch.Tensor) -> torch.Tensor:
+    """Rotation matrix of a rotation vector (Rodrigues' formula).
+
+    w: [..., 3] -> [..., 3, 3]
+    """
+    theta2 = (w * w).sum(-1, keepdim=True).unsqueeze(-1)
+    theta = theta2.sqrt()
+    small = theta2 < 1e-8
+    # Taylor series below 1e-4 rad: sin(t)/t and (1-cos t)/t^2 lose all digits there.
+    safe = torch.where(small, torch.ones_like(theta), theta)
+    a = torch.where(small, 1.0 - theta2 / 6.0, torch.sin(safe) / safe)
+    b = torch.where(small, 0.5 - theta2 / 24.0, (1.0 - torch.cos(safe)) / (safe * safe))
+    K = hat(w)
+    eye = torch.eye(3, dtype=w.dtype, device=w.device).expand_as(K)
+    return eye + a * K + b * (K @ K)
+
+
+def axis_angle(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
+    """Rotation about unit axes by angles.
+
+    axis: [..., 3] (unit), angle: [...] -> [..., 3, 3]
+    """
+    K = hat(axis)
+    s = torch.sin(angle)[..., None, None]
+    c = torch.cos(angle)[..., None, None]
+    eye = torch.eye(3, dtype=axis.dtype, device=axis.device)
+    return eye + s * K + (1.0 - c) * (K @ K)
+
+
+def log(R: torch.Tensor) -> torch.Tensor:
+    """Rotation vector of a rotation matrix, angle in [0, pi].
+
+    R: [..., 3, 3] -> [..., 3]
+    """
+    cos = ((R.diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0) / 2.0).clamp(-1.0, 1.0)
+    theta = torch.arccos(cos)
+    v = skew_vee(R)  # sin(theta) * u
+    sin = torch.sin(theta)
+    small = theta < 1e-6
+    near_pi = theta > torch.pi - 1e-3
+    scale = torch.where(small, 1.0 + theta * theta / 6.0, theta / torch.where(small, torch.ones_like(sin), sin))
+    w = v * scale.unsqueeze(-1)
+    if bool(near_pi.any()):
+        # Near pi, sin(theta) vanishes; read the axis from the symmetric part instead:
+        # (R + R^T)/2 = cos(theta) I + (1 - cos(theta)) u u^T.
+        eye = torch.eye(3, dtype=R.dtype, device=R.device)
+        B = (0.5 * (R + R.transpose(-1, -2)) - cos[..., None, None] * eye) / (1.0 - cos)[..., None, None]
+        col = B.diagonal(dim1=-2, dim2=-1).argmax(-1)
+        u = torch.gather(B, -1, col[..., None, None].expand(B.shape[:-1] + (1,))).squeeze(-1)
+        u = u / u.norm(dim=-1, keepdim=True)
+        # Choose the sign that agrees with the (small) skew part.
+        sign = torch.where((u * v).sum(-1, keepdim=True) < 0, -1.0, 1.0)
+        w = torch.where(near_pi.unsqueeze(-1), sign * u * theta.unsqueeze(-1), w)
+    return w
+
+
+def project(A: torch.Tensor) -> torch.Tensor:
+    """Nearest rotation matrix in the Frobenius norm (polar decomposition through the SVD).
+
+    A: [..., 3, 3] -> [..., 3, 3]
+    """
+    U, _, Vh = torch.linalg.svd(A)
+    d = torch.sign(torch.linalg.det(U @ Vh))
+    D = torch.ones(A.shape[:-1], dtype=A.dtype, device=A.device)
+    D[..., 2] = d
+    return (U * D.unsqueeze(-2)) @ Vh
+
+
+def rpy_to_matrix(rpy: torch.Tensor) -> torch.Tensor:
+    """URDF roll-pitch-yaw (fixed axes x, y, z) to a rotation matrix, `Rz(yaw) Ry(pitch) Rx(roll)`.
+
+    rpy: [..., 3] -> [..., 3, 3]
+    """
+    r, p, y = rpy.unbind(-1)
+    cr, sr, cp, sp, cy, sy = torch.cos(r), torch.sin(r), torch.cos(p), torch.sin(p), torch.cos(y), torch.sin(y)
+    return torch.stack(
+        (
+            cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr,
+            sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr,
+            -sp, cp * sr, cp * cr,
+        ),
+        dim=-1,
+    ).reshape(rpy.shape[:-1] + (3, 3))
+
+
+def random_rotation(shape: tuple[int, ...], generator: torch.Generator | None = None,
+                    dtype: torch.dtype = torch.float64) -> torch.Tensor:
+    """Rotations drawn uniformly on SO(3) (normalised Gaussian quaternions).
+
+    shape: batch shape -> [*shape, 3, 3]
+    """
+    q = torch.randn(tuple(shape) + (4,), generator=generator, dtype=dtype)
+    q = q / q.norm(dim=-1, keepdim=True)
+    return quaternion_to_matrix(q)
+
+
+def quaternion_to_matrix(q: torch.Tensor) -> torch.Tensor:
+    """Unit quaternion (w, x, y, z) to rotation matrix.
+
+    q: [..., 4] -> [..., 3, 3]
+    """
+    w, x, y, z = q.unbind(-1)
+    return torch.stack(
+        (
+            1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+            2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+            2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y),
+        ),
+        dim=-1,
+    ).reshape(q.shape[:-1] + (3, 3))
