@@ -7,7 +7,8 @@ per configuration of:
 - pinocchio in a per-configuration loop: forwardKinematics + computeJointJacobians +
   updateFramePlacements + getFrameJacobian(LOCAL_WORLD_ALIGNED) for the same 23 frames,
   the fastest CPU pipeline a user could assemble from an existing library.
-Both are checked to compute the same link positions before timing.
+Both are checked to compute the same link positions before timing. torchik.memory's
+`keep_freed_memory()` is on unless `--system-allocator` is given (see that module for why).
 
     python experiments/bench_kinematics.py [--threads 2] [--json out.json]
 """
@@ -25,6 +26,7 @@ import torch
 
 from torchik.models import TRACKED_LINKS, human_urdf, load_model
 from torchik import so3
+from torchik.memory import keep_freed_memory
 
 
 def median_time(fn, repeats: int, warmup: int = 3) -> float:
@@ -75,8 +77,11 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2, help="torch intra-op threads (default 2)")
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 64, 1024])
     parser.add_argument("--json", help="write the results here as JSON")
+    parser.add_argument("--system-allocator", action="store_true",
+                        help="leave glibc malloc as it is (by default torchik.memory.keep_freed_memory() is on)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
+    kept = False if args.system_allocator else keep_freed_memory()
 
     model = load_model("human66")
     links = TRACKED_LINKS["human66"]
@@ -103,7 +108,7 @@ def main() -> None:
         rows.append(row)
 
     print(f"Human66, {len(links)} links, poses + Jacobians [B,23,6,72], float64, {args.threads} torch threads, "
-          f"{platform.processor() or platform.machine()}")
+          f"{platform.processor() or platform.machine()}, keep_freed_memory={kept}")
     print(f"{'B':>6} | {'torchik ms':>10} {'us/conf':>8} | {'torchik out= ms':>15} {'us/conf':>8} | "
           f"{'pinocchio loop ms':>17} {'us/conf':>8}")
     for r in rows:
@@ -114,7 +119,7 @@ def main() -> None:
               f"{pin_ms:>17.3f} {pin_ms * 1e3 / B:>8.2f}")
     if args.json:
         with open(args.json, "w") as f:
-            json.dump(dict(threads=args.threads, links=len(links), rows=rows), f, indent=2)
+            json.dump(dict(threads=args.threads, links=len(links), keep_freed_memory=kept, rows=rows), f, indent=2)
 
 
 if __name__ == "__main__":

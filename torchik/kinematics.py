@@ -17,7 +17,7 @@ of the link origin and the world-frame angular velocity of the link: `[B,L,6,6+n
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
@@ -501,10 +501,14 @@ class KinematicModel:
         origin = p[self._joint_frame] - p_B.T  # [n,3,B] joint origins relative to the base
         d = p_link - p_B.T  # [L,3,B]
         J[:, :, 0:3, 3:6] = so3.hat(-d.permute(2, 0, 1))
-        a = axis[sel.pair_joint]  # [P,3,B]
+        # the columns of every (link, ancestor joint) pair: (a x r; a), r = p_L - o, batch last
+        columns = torch.empty(sel.pair_joint.shape[0], 6, B, dtype=J.dtype, device=J.device)
+        torch.index_select(axis, 0, sel.pair_joint, out=columns[:, 3:6])
         r = d[sel.pair_link] - origin[sel.pair_joint]
-        columns = torch.cat((torch.cross(a, r, dim=1), a), dim=1)  # [P,6,B]
-        J.view(B, -1)[:, sel.pair_flat_index] = columns.permute(2, 0, 1).reshape(B, -1)
+        a = columns[:, 3:6]
+        for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):  # the three components of a x r
+            torch.mul(a[:, j], r[:, k], out=columns[:, i]).addcmul_(a[:, k], r[:, j], value=-1.0)
+        J.view(B, -1).T.index_copy_(0, sel.pair_flat_index, columns.view(-1, B))
 
     def zero_configuration(self, batch: int = 1) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The zero configuration: base at the origin, identity rotation, s = 0. Shapes [B,3], [B,3,3], [B,n]."""
