@@ -96,8 +96,17 @@ class _Geometry:
         return _Geometry(*(t.to(dtype=dtype, device=device) for t in vars(self).values()))
 
 
+# Below this batch size, per-operation overhead dominates: use one matmul per product and
+# compose frames by pointer jumping (fewer, larger operations). Above it, the work dominates:
+# vectorise along the batch and compose level by level (least work).
+SMALL_BATCH = 32
+
+
 def _matmul_soa(A: torch.Tensor, B: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
     """3x3 products in batch-last layout: A [...,3,3,b], B [...,3,3,b] -> [...,3,3,b]."""
+    if A.shape[-1] <= SMALL_BATCH:
+        C = torch.matmul(A.movedim(-1, -3), B.movedim(-1, -3)).movedim(-3, -1)
+        return C if out is None else out.copy_(C)
     out = torch.mul(A[..., :, 0:1, :], B[..., 0:1, :, :], out=out)
     out.addcmul_(A[..., :, 1:2, :], B[..., 1:2, :, :])
     out.addcmul_(A[..., :, 2:3, :], B[..., 2:3, :, :])
@@ -106,6 +115,8 @@ def _matmul_soa(A: torch.Tensor, B: torch.Tensor, out: torch.Tensor | None = Non
 
 def _matvec_soa(A: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     """Matrix-vector products in batch-last layout: A [...,3,3,b], v [...,3,b] -> [...,3,b]."""
+    if A.shape[-1] <= SMALL_BATCH:
+        return torch.matmul(A.movedim(-1, -3), v.movedim(-1, -2).unsqueeze(-1)).squeeze(-1).movedim(-2, -1)
     return (A * v.unsqueeze(-3)).sum(-2)
 
 
@@ -303,6 +314,10 @@ class KinematicModel:
         long = dict(dtype=torch.long, device=self.device)
         self._levels = [(a, b, torch.tensor(p, **long)) for a, b, p in self._levels_py]
         self._jumps = [torch.tensor(j, **long) for j in self._jumps_py]
+        template = torch.zeros(self._n_frames + 1, 4, 4, dtype=dtype, device=self.device)
+        template[:, 3, 3] = 1.0
+        template[-1] = torch.eye(4, dtype=dtype, device=self.device)
+        self._homogeneous_template = template
         self._frame_joint_t = torch.tensor([max(j, 0) for j in self._frame_joint], **long)
         self._frame_is_joint = torch.tensor([[float(j >= 0)] for j in self._frame_joint], dtype=dtype, device=self.device)
         self._joint_frame = torch.tensor(self._joint_frame_py, **long)
@@ -433,7 +448,7 @@ class KinematicModel:
             raise InputError(f"out: expected buffers from empty_output({B}, links) for {len(sel.names)} links")
 
         R, p = self._frame_poses(base_position, base_rotation, joint_positions)  # [F,3,3,B], [F,3,B]
-        R_link, p_link = R[sel.anchor], p[sel.anchor]
+        R_link, p_link = R.index_select(0, sel.anchor), p.index_select(0, sel.anchor)
         if not sel.offsets_are_identity:
             p_link = p_link + _matvec_soa(R_link, sel.offset_position)
             R_link = _matmul_soa(R_link, sel.offset_rotation.expand_as(R_link))
@@ -461,18 +476,19 @@ class KinematicModel:
         """World rotation [F,3,3,B] and position [F,3,B] of every skeleton frame (batch last)."""
         g = self._geometry
         B = s.shape[0]
-        angle = s.T[self._frame_joint_t] * self._frame_is_joint  # [F,B]; the base frame has no joint
+        angle = s.T.index_select(0, self._frame_joint_t) * self._frame_is_joint  # [F,B]; the base frame has no joint
         sin = torch.sin(angle)[:, None, None, :]
         one_minus_cos = (1.0 - torch.cos(angle))[:, None, None, :]
         # R_parent->frame = R_off exp(hat(axis) angle) = R_off + sin R_off K + (1 - cos) R_off K^2
         R_local = (g.offset_rotation + sin * g.rotation_sin_term).addcmul_(one_minus_cos, g.rotation_cos_term)
         p_local = g.offset_position.expand(-1, -1, B)
         R_base = R_B.permute(1, 2, 0)  # [3,3,B]
-        if B <= 32 and self._jumps:
+        if B <= SMALL_BATCH and self._jumps:
             return self._compose_by_jumping(R_local, p_local, R_base, p_B.T)
+        # the base frame's offset is the identity and it has no joint, so its pose is the base pose
         R = torch.empty_like(R_local)
         p = torch.empty_like(p_local)
-        _matmul_soa(R_base, R_local[0], out=R[0])
+        R[0] = R_base
         p[0] = p_B.T
         for start, stop, parents in self._levels:  # one step per tree level, not per link
             R_parent = R.index_select(0, parents)
@@ -481,33 +497,36 @@ class KinematicModel:
         return R, p
 
     def _compose_by_jumping(self, R_local, p_local, R_base, p_base):
-        """Pointer jumping: log2(depth) rounds over all frames; fewer, larger ops for small batches."""
+        """Pointer jumping for small batches: log2(depth) rounds, each one gather and one product of
+        homogeneous transforms [B,F+1,4,4] over all frames (frame F is the world, its own parent).
+        Returns the same batch-last views as the level-by-level composition."""
         F, B = R_local.shape[0], R_local.shape[-1]
-        eye = torch.eye(3, dtype=R_local.dtype, device=R_local.device)[None, :, :, None].expand(1, 3, 3, B)
-        R = torch.cat((R_local, eye))  # frame F: the world
-        p = torch.cat((p_local, p_local.new_zeros(1, 3, B)))
-        R[0] = _matmul_soa(R_base, R_local[0])
-        p[0] = p_base
+        T = self._homogeneous_template.expand(B, -1, -1, -1).clone()
+        T[:, :F, :3, :3] = R_local.permute(3, 0, 1, 2)
+        T[:, :F, :3, 3] = p_local.permute(2, 0, 1)
+        T[:, 0, :3, :3] = R_base.permute(2, 0, 1)  # the base frame's offset is the identity
+        T[:, 0, :3, 3] = p_base.T
         for up in self._jumps:
-            R_up = R[up]
-            p = p[up] + _matvec_soa(R_up, p)
-            R = _matmul_soa(R_up, R)
-        return R[:F], p[:F]
+            T = torch.matmul(T.index_select(1, up), T)
+        return T[:, :F, :3, :3].permute(1, 2, 3, 0), T[:, :F, :3, 3].permute(1, 2, 0)
 
     def _jacobian(self, p_B, R, p, p_link, sel: LinkSelection, J: torch.Tensor) -> None:
         """Fill J [B,L,6,6+n]: base columns (I, -hat(p_L - p_B); 0, I), joint columns (a x (p_L - o); a)."""
         B, L = J.shape[0], J.shape[1]
-        axis = _matvec_soa(R[self._joint_frame], self._joint_axes)  # [n,3,B] world axes
-        origin = p[self._joint_frame] - p_B.T  # [n,3,B] joint origins relative to the base
+        axis = _matvec_soa(R.index_select(0, self._joint_frame), self._joint_axes)  # [n,3,B] world axes
+        origin = p.index_select(0, self._joint_frame) - p_B.T  # [n,3,B] joint origins relative to the base
         d = p_link - p_B.T  # [L,3,B]
         J[:, :, 0:3, 3:6] = so3.hat(-d.permute(2, 0, 1))
         # the columns of every (link, ancestor joint) pair: (a x r; a), r = p_L - o, batch last
         columns = torch.empty(sel.pair_joint.shape[0], 6, B, dtype=J.dtype, device=J.device)
         torch.index_select(axis, 0, sel.pair_joint, out=columns[:, 3:6])
-        r = d[sel.pair_link] - origin[sel.pair_joint]
+        r = d.index_select(0, sel.pair_link) - origin.index_select(0, sel.pair_joint)
         a = columns[:, 3:6]
-        for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):  # the three components of a x r
-            torch.mul(a[:, j], r[:, k], out=columns[:, i]).addcmul_(a[:, k], r[:, j], value=-1.0)
+        if B <= SMALL_BATCH:
+            torch.linalg.cross(a, r, dim=1, out=columns[:, 0:3])
+        else:  # torch's cross along a middle dimension is slow for large batches
+            for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):  # the three components of a x r
+                torch.mul(a[:, j], r[:, k], out=columns[:, i]).addcmul_(a[:, k], r[:, j], value=-1.0)
         J.view(B, -1).T.index_copy_(0, sel.pair_flat_index, columns.view(-1, B))
 
     def zero_configuration(self, batch: int = 1) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

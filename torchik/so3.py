@@ -9,16 +9,27 @@ from __future__ import annotations
 import torch
 
 
+_HAT_BASIS: dict[tuple[torch.dtype, torch.device], torch.Tensor] = {}
+
+
+def _hat_basis(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """[3,9]: row i is hat(e_i) flattened, so that hat(w).flatten() = w @ basis (exact: one term each)."""
+    key = (dtype, device)
+    if key not in _HAT_BASIS:
+        E = torch.zeros(3, 3, 3, dtype=dtype, device=device)
+        E[0, 2, 1], E[0, 1, 2] = 1, -1
+        E[1, 0, 2], E[1, 2, 0] = 1, -1
+        E[2, 1, 0], E[2, 0, 1] = 1, -1
+        _HAT_BASIS[key] = E.reshape(3, 9)
+    return _HAT_BASIS[key]
+
+
 def hat(w: torch.Tensor) -> torch.Tensor:
     """Skew-symmetric matrix of a vector, `hat(w) @ x == cross(w, x)`.
 
     w: [..., 3] -> [..., 3, 3]
     """
-    zero = torch.zeros_like(w[..., 0])
-    x, y, z = w.unbind(-1)
-    return torch.stack(
-        (zero, -z, y, z, zero, -x, -y, x, zero), dim=-1
-    ).reshape(w.shape[:-1] + (3, 3))
+    return (w @ _hat_basis(w.dtype, w.device)).reshape(w.shape[:-1] + (3, 3))
 
 
 def vee(S: torch.Tensor) -> torch.Tensor:
