@@ -137,8 +137,8 @@ def _read_urdf(source: str | Path):
             robot = URDF.from_xml_string(text)
         except Exception as exc:  # the parser raises bare XML and assertion errors
             raise ModelError(f"{where}: not a valid URDF ({type(exc).__name__}: {exc})") from exc
-    if not robot.joints:
-        raise ModelError(f"{where}: the URDF has no joints")
+    if not robot.links:
+        raise ModelError(f"{where}: the URDF has no links")
     return robot, where
 
 
@@ -476,7 +476,10 @@ class KinematicModel:
         """World rotation [F,3,3,B] and position [F,3,B] of every skeleton frame (batch last)."""
         g = self._geometry
         B = s.shape[0]
-        angle = s.T.index_select(0, self._frame_joint_t) * self._frame_is_joint  # [F,B]; the base frame has no joint
+        if self.n_dof:
+            angle = s.T.index_select(0, self._frame_joint_t) * self._frame_is_joint  # [F,B]; the base has no joint
+        else:  # a single rigid body
+            angle = s.new_zeros(self._n_frames, B)
         sin = torch.sin(angle)[:, None, None, :]
         one_minus_cos = (1.0 - torch.cos(angle))[:, None, None, :]
         # R_parent->frame = R_off exp(hat(axis) angle) = R_off + sin R_off K + (1 - cos) R_off K^2

@@ -1,0 +1,66 @@
+"""Configuration limits as bounds on the configuration velocity.
+
+Joint limits s_min <= s <= s_max become, for the step from s with time step dt,
+
+    -min(b tanh(K_g (s - s_min)), (s - s_min)/dt)  <=  s_dot  <=  min(b tanh(K_g (s_max - s)), (s_max - s)/dt)
+
+the paper's tanh bound (b: the largest joint rate, K_g: how early it slows down), capped by the
+gap over dt so that an Euler step can never cross a limit. General linear limits A s <= b follow
+the same rule row by row, on the distance to the row's boundary. A state already outside a limit
+is brought back at a bounded rate, b tanh(K_g gap) < 0, rather than in one jump.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+
+@dataclass(frozen=True)
+class LimitSettings:
+    """max_rate: b, the largest joint rate (rad/s); gain: K_g (1/rad); base_linear, base_angular:
+    optional bounds on the base velocity components (m/s, rad/s), None for free."""
+
+    max_rate: float = 20.0
+    gain: float = 10.0
+    base_linear: float | None = None
+    base_angular: float | None = None
+
+
+def _bound(gap: torch.Tensor, max_rate: float, gain: float, dt: torch.Tensor) -> torch.Tensor:
+    """Largest rate towards a boundary at distance `gap` (negative outside): [...] -> [...]."""
+    smooth = max_rate * torch.tanh(gain * gap)
+    return torch.where(gap >= 0, torch.minimum(smooth, gap / dt), smooth)
+
+
+def joint_velocity_bounds(s: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, settings: LimitSettings,
+                          dt: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Bounds on s_dot from joint limits. s: [B,n]; lower, upper: [n]; dt: [B,1] -> lb, ub [B,n]."""
+    ub = _bound(upper - s, settings.max_rate, settings.gain, dt)
+    lb = -_bound(s - lower, settings.max_rate, settings.gain, dt)
+    return lb, ub
+
+
+def linear_limit_bounds(s: torch.Tensor, A: torch.Tensor, b: torch.Tensor, settings: LimitSettings,
+                        dt: torch.Tensor) -> torch.Tensor:
+    """Right-hand side h of `A s_dot <= h` from `A s <= b`. s: [B,n]; A: [m,n]; b: [m]; dt: [B,1] -> h [B,m].
+
+    Each row is scaled to unit norm so that `gain` and `max_rate` mean the same as for a joint.
+    """
+    norm = A.norm(dim=-1)  # [m]
+    gap = (b - s @ A.T) / norm
+    return norm * _bound(gap, settings.max_rate, settings.gain, dt)
+
+
+def velocity_bounds(s: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, settings: LimitSettings,
+                    dt: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Bounds on the whole nu = (p_dot_B, omega_B, s_dot). s: [B,n] -> lb, ub [B,6+n] (inf where free)."""
+    B = s.shape[0]
+    lb_s, ub_s = joint_velocity_bounds(s, lower, upper, settings, dt)
+    base = torch.full((B, 6), torch.inf, dtype=s.dtype, device=s.device)
+    if settings.base_linear is not None:
+        base[:, :3] = settings.base_linear
+    if settings.base_angular is not None:
+        base[:, 3:] = settings.base_angular
+    return torch.cat((-base, lb_s), dim=1), torch.cat((base, ub_s), dim=1)

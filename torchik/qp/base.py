@@ -1,0 +1,59 @@
+"""The QP every backend solves, its solution, and the fallback when a solver fails."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import torch
+
+
+@dataclass(frozen=True)
+class QPProblem:
+    """min 1/2 x^T H x + g^T x  s.t.  lb <= x <= ub,  G x <= h, for a batch.
+
+    H: [B,N,N] symmetric positive definite; g: [B,N]; lb, ub: [B,N] (+-inf where free);
+    G: [B,m,N] or None; h: [B,m] or None.
+    """
+
+    H: torch.Tensor
+    g: torch.Tensor
+    lb: torch.Tensor
+    ub: torch.Tensor
+    G: torch.Tensor | None = None
+    h: torch.Tensor | None = None
+
+
+@dataclass(frozen=True)
+class QPSolution:
+    """x: [B,N]; solved: [B] bool, False where the solver failed and x is the clipped fallback."""
+
+    x: torch.Tensor
+    solved: torch.Tensor
+
+
+class QPBackend(ABC):
+    """Solves a batch of QPs. `warm_start` [B,N] is the previous step's solution, or None."""
+
+    name: str = "abstract"
+
+    @abstractmethod
+    def solve(self, problem: QPProblem, warm_start: torch.Tensor | None = None) -> QPSolution:
+        ...
+
+
+def clipped_fallback(problem: QPProblem) -> torch.Tensor:
+    """The nearest feasible velocity a failed solve can fall back to. -> [B,N]
+
+    The unconstrained minimiser clipped to the bounds, then shrunk towards zero until G x <= h
+    holds (zero joint rates satisfy it whenever the state is within its linear limits).
+    """
+    x = torch.linalg.solve(problem.H, -problem.g.unsqueeze(-1)).squeeze(-1)
+    x = torch.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0)
+    x = torch.minimum(torch.maximum(x, problem.lb), problem.ub)
+    if problem.G is not None:
+        Gx = (problem.G @ x.unsqueeze(-1)).squeeze(-1)
+        # largest alpha in [0, 1] with alpha G x <= h on every row where G x > h
+        ratio = torch.where(Gx > problem.h, problem.h.clamp(min=0) / Gx.clamp(min=1e-300), torch.ones_like(Gx))
+        x = x * ratio.min(dim=-1, keepdim=True).values.clamp(0.0, 1.0)
+    return x

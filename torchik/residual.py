@@ -1,0 +1,41 @@
+"""Task residuals and corrected velocities: what the step asks the configuration velocity to do.
+
+position:    r_p = p_target - p(q)                                   [B,n_p,3]
+orientation: r_o = R_hat sk(R_hat^T R_target)^vee                    [B,n_o,3]
+The orientation residual is in the world frame, the frame of the angular velocity it corrects;
+its norm is sin(angle) of the error, so its gain sets the rate near convergence.
+Corrected velocities: v* = v + K r.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from . import so3
+
+
+def position_residual(p_target: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+    """p_target - p. p_target, p: [B,n,3] -> [B,n,3]."""
+    return p_target - p
+
+
+def orientation_residual(R_target: torch.Tensor, R_hat: torch.Tensor) -> torch.Tensor:
+    """World-frame orientation residual R_hat sk(R_hat^T R_target)^vee.
+
+    R_target, R_hat: [B,n,3,3] link-to-world -> [B,n,3].
+    """
+    local = so3.skew_vee(R_hat.transpose(-1, -2) @ R_target)
+    return (R_hat @ local.unsqueeze(-1)).squeeze(-1)
+
+
+def orientation_error(R_target: torch.Tensor, R_hat: torch.Tensor) -> torch.Tensor:
+    """tr(I - R_hat^T R_target) / 2 = 1 - cos(angle) per target. [B,n,3,3] -> [B,n], in [0, 2]."""
+    trace = (R_hat * R_target).sum((-1, -2))  # tr(R_hat^T R_target)
+    return (3.0 - trace) / 2.0
+
+
+def corrected_velocity(velocity: torch.Tensor, residual: torch.Tensor, gain: torch.Tensor | float) -> torch.Tensor:
+    """v* = v + K r. velocity, residual: [B,n,3]; gain: scalar or [n] (per target) -> [B,n,3]."""
+    if isinstance(gain, torch.Tensor) and gain.dim() == 1:
+        gain = gain[:, None]
+    return velocity + gain * residual

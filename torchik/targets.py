@@ -1,0 +1,106 @@
+"""Measured targets for one time step, and their cleaning at the tracker's boundary.
+
+A step is driven by `n_p` position targets (world position and linear velocity of a link
+origin) and `n_o` orientation targets (world rotation and world angular velocity of a link),
+as in the paper: a position target on the base link and an orientation target on every
+tracked link.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import torch
+
+from . import so3
+from .errors import InputError
+
+
+@dataclass(frozen=True)
+class Targets:
+    """Targets at one instant for a batch of B subjects.
+
+    position: [B,n_p,3] m, world; linear_velocity: [B,n_p,3] m/s, world;
+    rotation: [B,n_o,3,3] link-to-world; angular_velocity: [B,n_o,3] rad/s, world.
+    """
+
+    position: torch.Tensor
+    linear_velocity: torch.Tensor
+    rotation: torch.Tensor
+    angular_velocity: torch.Tensor
+
+    @property
+    def batch(self) -> int:
+        return self.rotation.shape[0] if self.rotation.numel() else self.position.shape[0]
+
+    def to(self, dtype=None, device=None) -> "Targets":
+        return Targets(*(t.to(dtype=dtype, device=device) for t in vars(self).values()))
+
+    def select(self, rows: torch.Tensor | slice) -> "Targets":
+        """The targets of some batch rows."""
+        return Targets(*(t[rows] for t in vars(self).values()))
+
+
+@dataclass(frozen=True)
+class CleanTargets:
+    """Targets ready for a step, with what cleaning did.
+
+    position_valid: [B,n_p] bool; orientation_valid: [B,n_o] bool (NaN or Inf: dropped this step);
+    dropped: [B] targets dropped; projected: [B] rotations projected back onto SO(3).
+    """
+
+    targets: Targets
+    position_valid: torch.Tensor
+    orientation_valid: torch.Tensor
+    dropped: torch.Tensor
+    projected: torch.Tensor
+
+
+def check_targets(targets: Targets, n_position: int, n_orientation: int, dtype: torch.dtype,
+                  device: torch.device, batch: int | None = None) -> None:
+    """Shapes, dtype and device, with a message that says what was expected."""
+    B = batch if batch is not None else targets.batch
+    expected = dict(position=(B, n_position, 3), linear_velocity=(B, n_position, 3),
+                    rotation=(B, n_orientation, 3, 3), angular_velocity=(B, n_orientation, 3))
+    for name, shape in expected.items():
+        t = getattr(targets, name)
+        if not isinstance(t, torch.Tensor) or tuple(t.shape) != shape:
+            got = list(t.shape) if isinstance(t, torch.Tensor) else type(t).__name__
+            raise InputError(f"targets.{name}: expected shape {list(shape)}, got {got}")
+        if t.dtype != dtype or t.device != device:
+            raise InputError(f"targets.{name}: expected {dtype} on {device}, got {t.dtype} on {t.device}")
+
+
+def clean_targets(targets: Targets, project_tolerance: float = 1e-2, orthonormal_tolerance: float = 1e-9) -> CleanTargets:
+    """Drop non-finite targets for this step and project nearly orthonormal rotations onto SO(3).
+
+    A rotation with `||R^T R - I|| > project_tolerance` (Frobenius) is not a rotation that noise
+    or rounding could explain: InputError, naming the subject and target.
+    """
+    p_ok = torch.isfinite(targets.position).all(-1) & torch.isfinite(targets.linear_velocity).all(-1)
+    o_ok = torch.isfinite(targets.rotation).flatten(-2).all(-1) & torch.isfinite(targets.angular_velocity).all(-1)
+    position = torch.where(p_ok[..., None], targets.position, 0.0)
+    linear_velocity = torch.where(p_ok[..., None], targets.linear_velocity, 0.0)
+    eye = torch.eye(3, dtype=targets.rotation.dtype, device=targets.rotation.device)
+    rotation = torch.where(o_ok[..., None, None], targets.rotation, eye)
+    angular_velocity = torch.where(o_ok[..., None], targets.angular_velocity, 0.0)
+    error = (rotation.transpose(-1, -2) @ rotation - eye).flatten(-2).norm(dim=-1)  # [B,n_o]
+    far = error > project_tolerance
+    if bool(far.any()):
+        b, i = (int(x) for x in far.nonzero()[0])
+        raise InputError(
+            f"target rotation {i} of subject {b} is not a rotation (||R^T R - I|| = {float(error[b, i]):.3g} > "
+            f"{project_tolerance}); give rotation matrices (link to world)"
+        )
+    near = error > orthonormal_tolerance
+    if bool(near.any()):
+        rotation = torch.where(near[..., None, None], so3.project(rotation), rotation)
+    cleaned = Targets(position, linear_velocity, rotation, angular_velocity)
+    dropped = (~p_ok).sum(-1) + (~o_ok).sum(-1)
+    return CleanTargets(cleaned, p_ok, o_ok, dropped, near.sum(-1))
+
+
+def with_rows(base: Targets, rows: torch.Tensor, values: Targets) -> Targets:
+    """`base` with the batch rows where `rows` [B] is True taken from `values`."""
+    pick = lambda a, b: torch.where(rows.view((-1,) + (1,) * (a.dim() - 1)), b, a)  # noqa: E731
+    return replace(base, **{k: pick(getattr(base, k), getattr(values, k)) for k in vars(base)})

@@ -1,0 +1,378 @@
+"""Dynamical inverse kinematics: one constrained velocity solve per time step.
+
+Each step, for a batch of B subjects:
+
+1. targets x_k (positions, rotations and their velocities) are cleaned: non-finite ones are
+   dropped for the step, nearly orthonormal rotations projected;
+2. kinematics at the evaluation configuration: link poses and the task Jacobian J;
+3. residuals r (position p* - p, orientation R_hat sk(R_hat^T R*)^vee, world frame) and corrected
+   velocities v* = v + K r;
+4. the QP  min ||v* - J nu||^2 + lambda ||nu||^2  s.t. the velocity bounds of the joint limits
+   (and A s_dot <= h for coupled limits);
+5. integration of the configuration from nu over dt.
+
+Two discretisations of the continuous law J nu = v + K r:
+
+- 'midpoint' (default, second order): the residual compares the state q_{k-1} with the targets
+  at the same instant t_{k-1}; the feed-forward velocity is the mean of v(t_{k-1}) and v(t_k),
+  the average velocity over the step; the Jacobian is taken at the middle of the step,
+  predicted from the previous velocities, which accounts for the curvature of the kinematics
+  (with J(q_{k-1}) a chain of joints would leave an O(dt^2) error every step, a first-order
+  scheme). Then q_k = q_{k-1} + dt nu_k. The error is O(dt^2 / K); stability: K dt < 2. It costs
+  one kinematics call more than the paper's scheme, without Jacobians.
+- 'paper' (the literal discrete law of the paper): J(q_{k-1}) nu_k = v(t_k) + K r(q_{k-1}, x(t_k)),
+  q_k = q_{k-1} + dt nu_k. It lags by about dt v (first order). Stability: K dt < 2.
+
+Diagnostics describe the state at the start of the step against the targets at that instant.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import torch
+
+from . import so3
+from .errors import InputError
+from .integrate import ROTATION_INTEGRATORS, integrate, orthonormalize
+from .kinematics import KinematicModel
+from .limits import LimitSettings, linear_limit_bounds, velocity_bounds
+from .qp import QPProblem, make_backend
+from .residual import orientation_error, orientation_residual
+from .targets import Targets, check_targets, clean_targets
+
+SCHEMES = {"midpoint": 2.0, "paper": 2.0}  # scheme -> linear stability bound on K dt
+
+
+@dataclass
+class State:
+    """The configuration and its velocity. base_position [B,3]; base_rotation [B,3,3];
+    joint_positions [B,n]; velocity [B,6+n] = (p_dot_B, omega_B world, s_dot)."""
+
+    base_position: torch.Tensor
+    base_rotation: torch.Tensor
+    joint_positions: torch.Tensor
+    velocity: torch.Tensor
+
+    def clone(self) -> "State":
+        return State(*(t.clone() for t in vars(self).values()))
+
+
+@dataclass(frozen=True)
+class StepDiagnostics:
+    """What a step did, per subject.
+
+    mnte: [B] mean of 1 - cos(angle) over the orientation targets used, state and targets at the
+    start of the step;
+    residual_norm: [B,n_p+n_o] |r| per target (m for positions, sin(angle) for orientations);
+    active_constraints: [B] bounds and linear limits active in the QP's solution;
+    solved: [B] False where the QP failed and the clipped fallback was used;
+    dropped: [B] non-finite targets dropped; projected: [B] target rotations projected onto SO(3);
+    step_time: seconds for the whole batch.
+    """
+
+    mnte: torch.Tensor
+    residual_norm: torch.Tensor
+    active_constraints: torch.Tensor
+    solved: torch.Tensor
+    dropped: torch.Tensor
+    projected: torch.Tensor
+    step_time: float
+
+
+@dataclass(frozen=True)
+class TargetSequence:
+    """Targets over time: time [T] s (strictly increasing); fields as Targets with a leading T."""
+
+    time: torch.Tensor
+    position: torch.Tensor
+    linear_velocity: torch.Tensor
+    rotation: torch.Tensor
+    angular_velocity: torch.Tensor
+
+    def __len__(self) -> int:
+        return self.time.shape[0]
+
+    def __getitem__(self, k: int) -> Targets:
+        return Targets(self.position[k], self.linear_velocity[k], self.rotation[k], self.angular_velocity[k])
+
+
+@dataclass
+class Trajectory:
+    """A tracked sequence: time [T]; base_position [T,B,3]; base_rotation [T,B,3,3];
+    joint_positions [T,B,n]; velocity [T,B,6+n]; and the step diagnostics stacked over time
+    (mnte [T,B], residual_norm [T,B,n_t], active_constraints [T,B], solved [T,B], dropped [T,B],
+    projected [T,B], step_time [T])."""
+
+    time: torch.Tensor
+    base_position: torch.Tensor
+    base_rotation: torch.Tensor
+    joint_positions: torch.Tensor
+    velocity: torch.Tensor
+    diagnostics: dict[str, torch.Tensor] = field(default_factory=dict)
+
+
+class DynamicalIK:
+    """The tracker. Build it once for a model and a set of targets, `reset`, then `step` or `run`.
+
+    model: a KinematicModel (or a stack of subjects); orientation_links, position_links: the
+    links the targets belong to (default: one position target on the base link).
+    position_gain, orientation_gain: K per block, a scalar or one per target (1/s).
+    dt: nominal time step (s); `step(..., dt=...)` may vary it (jittered timestamps).
+    scheme: 'midpoint' (second order, default) or 'paper'; rotation_integrator: 'baumgarte' (rho:
+    baumgarte_gain, 1/s) or 'exp'; damping: lambda; limits: LimitSettings; backend: 'piqp'.
+    """
+
+    def __init__(
+        self,
+        model: KinematicModel,
+        orientation_links: Sequence[str],
+        position_links: Sequence[str] | None = None,
+        position_gain: float | torch.Tensor = 10.0,
+        orientation_gain: float | torch.Tensor = 10.0,
+        dt: float = 0.01,
+        scheme: str = "midpoint",
+        rotation_integrator: str = "baumgarte",
+        baumgarte_gain: float = 100.0,
+        damping: float = 1e-9,
+        limits: LimitSettings = LimitSettings(),
+        backend: str = "piqp",
+    ):
+        if scheme not in SCHEMES:
+            raise InputError(f"unknown scheme {scheme!r}; valid: {', '.join(SCHEMES)}")
+        if rotation_integrator not in ROTATION_INTEGRATORS:
+            raise InputError(f"unknown rotation integrator {rotation_integrator!r}; valid: {', '.join(ROTATION_INTEGRATORS)}")
+        if dt <= 0:
+            raise InputError(f"dt must be positive, got {dt}")
+        self.model = model
+        self.position_links = tuple(position_links if position_links is not None else (model.base_link,))
+        self.orientation_links = tuple(orientation_links)
+        links = tuple(dict.fromkeys(self.position_links + self.orientation_links))
+        self._selection = model.select(links)  # raises UnknownLinkError for a bad name
+        index = {name: i for i, name in enumerate(links)}
+        long = dict(dtype=torch.long, device=model.device)
+        self._position_index = torch.tensor([index[n] for n in self.position_links], **long)
+        self._orientation_index = torch.tensor([index[n] for n in self.orientation_links], **long)
+        kw = dict(dtype=model.dtype, device=model.device)
+        self.position_gain = torch.as_tensor(position_gain, **kw).expand(len(self.position_links)).clone()
+        self.orientation_gain = torch.as_tensor(orientation_gain, **kw).expand(len(self.orientation_links)).clone()
+        self.dt, self.scheme, self.rotation_integrator = float(dt), scheme, rotation_integrator
+        self.baumgarte_gain, self.damping, self.limits = float(baumgarte_gain), float(damping), limits
+        self.backend = make_backend(backend)
+        bound = SCHEMES[scheme]
+        largest = float(torch.cat((self.position_gain, self.orientation_gain)).max()) * self.dt
+        if largest >= bound:
+            warnings.warn(f"K dt = {largest:.3g} is beyond the {scheme} scheme's stability bound {bound}: "
+                          f"the tracking error will grow; lower the gains or the time step", stacklevel=2)
+        self._state: State | None = None
+
+    # ------------------------------------------------------------------ state
+    def reset(self, state: State | None = None, batch: int = 1) -> State:
+        """Start from `state` (default: the zero configuration, at rest) for `batch` subjects."""
+        if state is None:
+            p, R, s = self.model.zero_configuration(batch)
+            state = State(p, R, s, torch.zeros(batch, 6 + self.model.n_dof, dtype=p.dtype, device=p.device))
+        B = state.base_position.shape[0]
+        self.model._check("state.base_position", state.base_position, (B, 3))
+        self.model._check("state.base_rotation", state.base_rotation, (B, 3, 3))
+        self.model._check("state.joint_positions", state.joint_positions, (B, self.model.n_dof))
+        self.model._check("state.velocity", state.velocity, (B, 6 + self.model.n_dof))
+        self._state = state.clone()
+        self._previous = self._before = self._previous_valid = self._before_valid = None
+        self._steps = 0
+        self._last_dt = torch.full((B, 1), self.dt, dtype=state.velocity.dtype, device=state.velocity.device)
+        self._velocity_slope = torch.zeros_like(state.velocity)
+        self._buffers = self.model.empty_output(B, self._selection)
+        return self.state
+
+    @property
+    def state(self) -> State:
+        """The current state, its base rotation orthonormalised (what leaves the library)."""
+        s = self._require_state()
+        return State(s.base_position.clone(), orthonormalize(s.base_rotation), s.joint_positions.clone(),
+                     s.velocity.clone())
+
+    @property
+    def integrator_rotation(self) -> torch.Tensor:
+        """[B,3,3] the base rotation as the integrator holds it (Baumgarte lets it drift off SO(3))."""
+        return self._require_state().base_rotation.clone()
+
+    def _require_state(self) -> State:
+        if self._state is None:
+            raise InputError("call reset() before step()")
+        return self._state
+
+    # ------------------------------------------------------------------ the step
+    def step(self, targets: Targets, dt: float | torch.Tensor | None = None) -> tuple[State, StepDiagnostics]:
+        """Advance by dt (default: the nominal dt; a scalar or [B]) towards `targets`.
+
+        targets: Targets with n_p position and n_o orientation targets, batch B.
+        Returns the new State and the step's StepDiagnostics.
+        """
+        start = time.perf_counter()
+        q = self._require_state()
+        B, model = q.base_position.shape[0], self.model
+        check_targets(targets, len(self.position_links), len(self.orientation_links), model.dtype, model.device, B)
+        dt = self._time_step(dt, B)
+        clean = clean_targets(targets)
+        x = clean.targets
+
+        # The residual compares the state with the targets at the same instant: t_{k-1} (midpoint
+        # scheme) or, literally as in the paper, q_{k-1} with x(t_k).
+        previous, before = self._history(x, clean)
+        R_B = orthonormalize(q.base_rotation)
+        if self.scheme == "midpoint":
+            now = model(q.base_position, R_B, q.joint_positions, self._selection, jacobian=False)
+            # the Jacobian at mid-step: q + dt/2 times the velocity at the step's first quarter,
+            # extrapolated from the last two steps' velocities (each taken at its own midpoint)
+            half = 0.5 * dt
+            nu_ahead = q.velocity + self._velocity_slope * (0.5 * self._last_dt + 0.25 * dt)
+            J_full = model(q.base_position + half * nu_ahead[:, :3], orthonormalize(so3.exp(half * nu_ahead[:, 3:6]) @ R_B),
+                           q.joint_positions + half * nu_ahead[:, 6:], self._selection, out=self._buffers).jacobian
+            x_r = previous
+            v_p, v_o = self._mean_velocity(before, previous, x, dt)
+        else:
+            now = model(q.base_position, R_B, q.joint_positions, self._selection, out=self._buffers)
+            J_full, x_r, v_p, v_o = now.jacobian, x, x.linear_velocity, x.angular_velocity
+        R_hat = now.rotation.index_select(1, self._orientation_index)
+        p_hat = now.position.index_select(1, self._position_index)
+        r_p = x_r.position - p_hat
+        r_o = orientation_residual(x_r.rotation, R_hat)
+        v_star = torch.cat((v_p + self.position_gain[:, None] * r_p, v_o + self.orientation_gain[:, None] * r_o), dim=1)
+        J = torch.cat((J_full.index_select(1, self._position_index)[:, :, :3],
+                       J_full.index_select(1, self._orientation_index)[:, :, 3:]), dim=1)  # [B,n_t,3,N]
+        valid = torch.cat((clean.position_valid, clean.orientation_valid), dim=1).to(J.dtype)  # [B,n_t]
+        J = (J * valid[:, :, None, None]).flatten(1, 2)  # dropped targets: zero rows
+        v_star = (v_star * valid[:, :, None]).flatten(1)
+
+        N = J.shape[-1]
+        H = J.transpose(1, 2) @ J
+        H.diagonal(dim1=1, dim2=2).add_(self.damping)
+        g = -(J.transpose(1, 2) @ v_star.unsqueeze(-1)).squeeze(-1)
+        lb, ub = velocity_bounds(q.joint_positions, model.lower, model.upper, self.limits, dt)
+        G = h = None
+        if model.linear_limits is not None:
+            A = model.linear_limits.A
+            G = torch.cat((A.new_zeros(A.shape[0], 6), A), dim=1).expand(B, -1, -1)
+            h = linear_limit_bounds(q.joint_positions, A, model.linear_limits.b, self.limits, dt)
+        problem = QPProblem(H, g, lb, ub, G, h)
+        solution = self.backend.solve(problem, warm_start=q.velocity)
+        nu = solution.x
+
+        p_next, R_next, s_next = integrate(q.base_position, q.base_rotation, q.joint_positions, nu, dt,
+                                           self.rotation_integrator, self.baumgarte_gain)
+        # d(nu)/dt between this step's midpoint and the last one's, for the next prediction
+        self._velocity_slope = (nu - q.velocity) / (0.5 * (dt + self._last_dt)) if self._steps else torch.zeros_like(nu)
+        self._last_dt = dt
+        self._steps += 1
+        self._state = State(p_next, R_next, s_next, nu)
+
+        diagnostics = StepDiagnostics(
+            mnte=self._mean_over_valid(orientation_error(previous.rotation, R_hat), clean.orientation_valid),
+            residual_norm=torch.cat((r_p, r_o), dim=1).norm(dim=-1) * valid,
+            active_constraints=self._active(problem, nu),
+            solved=solution.solved,
+            dropped=clean.dropped,
+            projected=clean.projected,
+            step_time=time.perf_counter() - start,
+        )
+        return self.state, diagnostics
+
+    def _history(self, x: Targets, clean) -> tuple[Targets, Targets | None]:
+        """The targets one and two steps back, a dropped (non-finite) one replaced by the current;
+        then remember the current ones."""
+        valid = (clean.position_valid, clean.orientation_valid)
+        if self._previous is None:
+            previous, before = x, None
+        else:
+            previous = self._substitute(self._previous, self._previous_valid, x)
+            before = None if self._before is None else self._substitute(self._before, self._before_valid, x)
+        self._before, self._before_valid = self._previous, self._previous_valid
+        self._previous, self._previous_valid = x, valid
+        return previous, before
+
+    @staticmethod
+    def _substitute(old: Targets, old_valid, current: Targets) -> Targets:
+        p_ok, o_ok = old_valid
+        pick_p = lambda a, b: torch.where(p_ok[..., None], a, b)  # noqa: E731
+        pick_o = lambda a, b: torch.where(o_ok.view(o_ok.shape + (1,) * (a.dim() - 2)), a, b)  # noqa: E731
+        return Targets(pick_p(old.position, current.position), pick_p(old.linear_velocity, current.linear_velocity),
+                       pick_o(old.rotation, current.rotation), pick_o(old.angular_velocity, current.angular_velocity))
+
+    def _mean_velocity(self, before: Targets | None, previous: Targets, current: Targets, dt: torch.Tensor):
+        """The average target velocity over [t_{k-1}, t_k]: the integral of the quadratic through the
+        last three samples (weights -1/12, 8/12, 5/12 for even steps), or the trapezoid rule while
+        there are only two. Returns linear [B,n_p,3] and angular [B,n_o,3] velocities."""
+        if before is None:
+            w_before = torch.zeros_like(dt)
+            w_now = torch.full_like(dt, 0.5)
+        else:
+            h1, h = self._last_dt, dt
+            w_before = -h * h / (6.0 * h1 * (h1 + h))
+            w_now = (h / 3.0 + h1 / 2.0) / (h + h1)
+        w_prev = 1.0 - w_now - w_before
+        w_before, w_prev, w_now = (w[:, :, None] for w in (w_before, w_prev, w_now))  # [B,1,1]
+        mean = lambda name: (w_prev * getattr(previous, name) + w_now * getattr(current, name)  # noqa: E731
+                             + (0.0 if before is None else w_before * getattr(before, name)))
+        return mean("linear_velocity"), mean("angular_velocity")
+
+    def _time_step(self, dt, B: int) -> torch.Tensor:
+        kw = dict(dtype=self.model.dtype, device=self.model.device)
+        dt = torch.as_tensor(self.dt if dt is None else dt, **kw)
+        if dt.dim() == 0:
+            dt = dt.expand(B)
+        if dt.shape != (B,) or not bool((dt > 0).all()) or not bool(torch.isfinite(dt).all()):
+            raise InputError(f"dt: expected a positive scalar or [{B}] positive values, got {dt.tolist()}")
+        return dt[:, None]
+
+    @staticmethod
+    def _mean_over_valid(values: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+        weight = valid.to(values.dtype)
+        return (values * weight).sum(-1) / weight.sum(-1).clamp(min=1.0)
+
+    @staticmethod
+    def _active(problem: QPProblem, x: torch.Tensor, tolerance: float = 1e-7) -> torch.Tensor:
+        """[B] bounds (lower or upper) and linear limits that the solution touches."""
+        at_lb = torch.isfinite(problem.lb) & ((x - problem.lb).abs() <= tolerance * (1.0 + problem.lb.abs()))
+        at_ub = torch.isfinite(problem.ub) & ((problem.ub - x).abs() <= tolerance * (1.0 + problem.ub.abs()))
+        count = (at_lb | at_ub).sum(-1)
+        if problem.G is not None:
+            slack = problem.h - (problem.G @ x.unsqueeze(-1)).squeeze(-1)
+            count = count + (slack.abs() <= tolerance * (1.0 + problem.h.abs())).sum(-1)
+        return count
+
+    # ------------------------------------------------------------------ whole sequences
+    def run(self, sequence: TargetSequence, initial: State | None = None, progress: bool | None = None) -> Trajectory:
+        """Track a whole sequence from `initial` (default: zero configuration). Sample k of the result
+        is the state after the step towards targets k; the first step uses the nominal dt, later
+        ones the timestamps' differences. A progress bar shows on runs longer than a few seconds."""
+        T = len(sequence)
+        if T == 0:
+            raise InputError("the sequence is empty")
+        time_ = sequence.time
+        if T > 1 and not bool((time_[1:] > time_[:-1]).all()):
+            raise InputError("sequence.time must be strictly increasing")
+        B = sequence.rotation.shape[1] if sequence.rotation.numel() else sequence.position.shape[1]
+        self.reset(initial, batch=B)
+        steps = range(T)
+        if progress is None:
+            progress = T * B > 20000
+        if progress:
+            from tqdm import tqdm
+
+            steps = tqdm(steps, desc="tracking", unit="step", leave=False)
+        states, diags = [], []
+        for k in steps:
+            dt = None if k == 0 else time_[k] - time_[k - 1]
+            state, diag = self.step(sequence[k], dt)
+            states.append(state)
+            diags.append(diag)
+        stack = lambda name: torch.stack([getattr(s, name) for s in states])  # noqa: E731
+        diagnostics = {name: torch.stack([getattr(d, name) for d in diags])
+                       for name in ("mnte", "residual_norm", "active_constraints", "solved", "dropped", "projected")}
+        diagnostics["step_time"] = torch.tensor([d.step_time for d in diags], dtype=torch.float64)
+        return Trajectory(time_, stack("base_position"), stack("base_rotation"), stack("joint_positions"),
+                          stack("velocity"), diagnostics)
