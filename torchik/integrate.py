@@ -26,21 +26,31 @@ def baumgarte_step(R: torch.Tensor, omega: torch.Tensor, dt: torch.Tensor, rho: 
 
 
 def exponential_step(R: torch.Tensor, omega: torch.Tensor, dt: torch.Tensor) -> torch.Tensor:
-    """R <- exp(dt hat(omega)) R. R: [B,3,3]; omega: [B,3] world; dt: [B,1] -> [B,3,3]."""
-    return so3.exp(dt * omega) @ R
+    """R <- exp(dt hat(omega)) R. R: [B,3,3]; omega: [B,3] world; dt: [B,1] -> [B,3,3].
+
+    One Newton-Schulz iteration after the product removes the rounding that would otherwise
+    accumulate (about 1e-16 per step, 1e-11 after 10^5 steps)."""
+    R = so3.exp(dt * omega) @ R
+    eye = torch.eye(3, dtype=R.dtype, device=R.device)
+    return 0.5 * R @ (3.0 * eye - R.transpose(-1, -2) @ R)
 
 
 def orthonormalize(R: torch.Tensor) -> torch.Tensor:
     """The nearest rotation to nearly orthonormal matrices. [...,3,3] -> [...,3,3].
 
-    Three Newton-Schulz iterations X <- X (3I - X^T X)/2 (quadratic convergence: 1e-4 -> 1e-16);
+    Newton-Schulz iterations X <- X (3I - X^T X)/2 converge quadratically (1e-4 -> 1e-8 -> 1e-16);
     far from SO(3), where they would not converge, the SVD projection.
     """
     eye = torch.eye(3, dtype=R.dtype, device=R.device)
-    if float((R.transpose(-1, -2) @ R - eye).abs().max()) > 0.1:
+    M = R.transpose(-1, -2) @ R
+    deviation = float((M - eye).abs().max())
+    if deviation > 0.1:
         return so3.project(R)
-    for _ in range(3):
-        R = 0.5 * R @ (3.0 * eye - R.transpose(-1, -2) @ R)
+    iterations = 0 if deviation < 1e-13 else 1 if deviation < 1e-8 else 2 if deviation < 1e-4 else 3
+    for i in range(iterations):
+        if i:
+            M = R.transpose(-1, -2) @ R
+        R = R @ (1.5 * eye - 0.5 * M)
     return R
 
 

@@ -8,7 +8,7 @@ tracked link.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import torch
 
@@ -46,7 +46,8 @@ class CleanTargets:
     """Targets ready for a step, with what cleaning did.
 
     position_valid: [B,n_p] bool; orientation_valid: [B,n_o] bool (NaN or Inf: dropped this step);
-    dropped: [B] targets dropped; projected: [B] rotations projected back onto SO(3).
+    dropped: [B] targets dropped; projected: [B] rotations projected back onto SO(3);
+    all_valid: no target was dropped.
     """
 
     targets: Targets
@@ -54,6 +55,7 @@ class CleanTargets:
     orientation_valid: torch.Tensor
     dropped: torch.Tensor
     projected: torch.Tensor
+    all_valid: bool = True
 
 
 def check_targets(targets: Targets, n_position: int, n_orientation: int, dtype: torch.dtype,
@@ -77,30 +79,39 @@ def clean_targets(targets: Targets, project_tolerance: float = 1e-2, orthonormal
     A rotation with `||R^T R - I|| > project_tolerance` (Frobenius) is not a rotation that noise
     or rounding could explain: InputError, naming the subject and target.
     """
-    p_ok = torch.isfinite(targets.position).all(-1) & torch.isfinite(targets.linear_velocity).all(-1)
-    o_ok = torch.isfinite(targets.rotation).flatten(-2).all(-1) & torch.isfinite(targets.angular_velocity).all(-1)
-    position = torch.where(p_ok[..., None], targets.position, 0.0)
-    linear_velocity = torch.where(p_ok[..., None], targets.linear_velocity, 0.0)
-    eye = torch.eye(3, dtype=targets.rotation.dtype, device=targets.rotation.device)
-    rotation = torch.where(o_ok[..., None, None], targets.rotation, eye)
-    angular_velocity = torch.where(o_ok[..., None], targets.angular_velocity, 0.0)
-    error = (rotation.transpose(-1, -2) @ rotation - eye).flatten(-2).norm(dim=-1)  # [B,n_o]
-    far = error > project_tolerance
-    if bool(far.any()):
-        b, i = (int(x) for x in far.nonzero()[0])
-        raise InputError(
-            f"target rotation {i} of subject {b} is not a rotation (||R^T R - I|| = {float(error[b, i]):.3g} > "
-            f"{project_tolerance}); give rotation matrices (link to world)"
-        )
-    near = error > orthonormal_tolerance
-    if bool(near.any()):
+    position, linear_velocity = targets.position, targets.linear_velocity
+    rotation, angular_velocity = targets.rotation, targets.angular_velocity
+    B, n_p, n_o = position.shape[0], position.shape[1], rotation.shape[1]
+    # one check for the usual case: NaN and Inf propagate through a sum
+    total = position.sum() + linear_velocity.sum() + rotation.sum() + angular_velocity.sum()
+    all_valid = bool(torch.isfinite(total))
+    if all_valid:
+        p_ok = torch.ones(B, n_p, dtype=torch.bool, device=position.device)
+        o_ok = torch.ones(B, n_o, dtype=torch.bool, device=position.device)
+    else:
+        p_ok = torch.isfinite(position).all(-1) & torch.isfinite(linear_velocity).all(-1)
+        o_ok = torch.isfinite(rotation).flatten(-2).all(-1) & torch.isfinite(angular_velocity).all(-1)
+        position = torch.where(p_ok[..., None], position, 0.0)
+        linear_velocity = torch.where(p_ok[..., None], linear_velocity, 0.0)
+        eye = torch.eye(3, dtype=rotation.dtype, device=rotation.device)
+        rotation = torch.where(o_ok[..., None, None], rotation, eye)
+        angular_velocity = torch.where(o_ok[..., None], angular_velocity, 0.0)
+        all_valid = bool(p_ok.all()) and bool(o_ok.all())
+    eye = torch.eye(3, dtype=rotation.dtype, device=rotation.device)
+    deviation = rotation.transpose(-1, -2) @ rotation - eye
+    projected = torch.zeros(B, dtype=torch.long, device=position.device)
+    if n_o and float(deviation.abs().max()) > orthonormal_tolerance / 3:
+        error = deviation.flatten(-2).norm(dim=-1)  # [B,n_o]
+        far = error > project_tolerance
+        if bool(far.any()):
+            b, i = (int(x) for x in far.nonzero()[0])
+            raise InputError(
+                f"target rotation {i} of subject {b} is not a rotation (||R^T R - I|| = {float(error[b, i]):.3g} > "
+                f"{project_tolerance}); give rotation matrices (link to world)"
+            )
+        near = error > orthonormal_tolerance
         rotation = torch.where(near[..., None, None], so3.project(rotation), rotation)
+        projected = near.sum(-1)
     cleaned = Targets(position, linear_velocity, rotation, angular_velocity)
     dropped = (~p_ok).sum(-1) + (~o_ok).sum(-1)
-    return CleanTargets(cleaned, p_ok, o_ok, dropped, near.sum(-1))
-
-
-def with_rows(base: Targets, rows: torch.Tensor, values: Targets) -> Targets:
-    """`base` with the batch rows where `rows` [B] is True taken from `values`."""
-    pick = lambda a, b: torch.where(rows.view((-1,) + (1,) * (a.dim() - 1)), b, a)  # noqa: E731
-    return replace(base, **{k: pick(getattr(base, k), getattr(values, k)) for k in vars(base)})
+    return CleanTargets(cleaned, p_ok, o_ok, dropped, projected, all_valid)

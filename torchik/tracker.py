@@ -38,7 +38,7 @@ import torch
 from . import so3
 from .errors import InputError
 from .integrate import ROTATION_INTEGRATORS, integrate, orthonormalize
-from .kinematics import KinematicModel
+from .kinematics import KinematicModel, LinkKinematics
 from .limits import LimitSettings, linear_limit_bounds, velocity_bounds
 from .qp import QPProblem, make_backend
 from .residual import orientation_error, orientation_residual
@@ -71,7 +71,8 @@ class StepDiagnostics:
     active_constraints: [B] bounds and linear limits active in the QP's solution;
     solved: [B] False where the QP failed and the clipped fallback was used;
     dropped: [B] non-finite targets dropped; projected: [B] target rotations projected onto SO(3);
-    step_time: seconds for the whole batch.
+    step_time: seconds for the whole batch, of which kinematics_time (both kinematics calls) and
+    qp_time (building and solving the QP's bounds and solving it).
     """
 
     mnte: torch.Tensor
@@ -81,6 +82,8 @@ class StepDiagnostics:
     dropped: torch.Tensor
     projected: torch.Tensor
     step_time: float
+    kinematics_time: float = 0.0
+    qp_time: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -125,6 +128,8 @@ class DynamicalIK:
     scheme: 'midpoint' (second order, default) or 'paper'; rotation_integrator: 'baumgarte' (rho:
     baumgarte_gain, 1/s) or 'exp'; damping: lambda; limits: LimitSettings; backend: 'piqp'.
     """
+
+    STACK_BELOW = 16  # batches up to this size evaluate both configurations of a step in one call
 
     def __init__(
         self,
@@ -181,19 +186,24 @@ class DynamicalIK:
         self.model._check("state.joint_positions", state.joint_positions, (B, self.model.n_dof))
         self.model._check("state.velocity", state.velocity, (B, 6 + self.model.n_dof))
         self._state = state.clone()
+        self._rotation = orthonormalize(self._state.base_rotation)
         self._previous = self._before = self._previous_valid = self._before_valid = None
         self._steps = 0
-        self._last_dt = torch.full((B, 1), self.dt, dtype=state.velocity.dtype, device=state.velocity.device)
+        kw = dict(dtype=state.velocity.dtype, device=state.velocity.device)
+        self._nominal_dt = torch.full((B, 1), self.dt, **kw)
+        self._last_dt = self._nominal_dt
         self._velocity_slope = torch.zeros_like(state.velocity)
-        self._buffers = self.model.empty_output(B, self._selection)
+        stacked = self.scheme == "midpoint" and B <= self.STACK_BELOW and self.model.n_subjects == 1
+        rows = 2 * B if stacked else B
+        self._buffers = self.model.empty_output(rows, self._selection)
         return self.state
 
     @property
     def state(self) -> State:
-        """The current state, its base rotation orthonormalised (what leaves the library)."""
+        """The current state, its base rotation orthonormalised (what leaves the library). The
+        tracker replaces its state every step and never writes into it: these tensors stay valid."""
         s = self._require_state()
-        return State(s.base_position.clone(), orthonormalize(s.base_rotation), s.joint_positions.clone(),
-                     s.velocity.clone())
+        return State(s.base_position, self._rotation, s.joint_positions, s.velocity)
 
     @property
     def integrator_rotation(self) -> torch.Tensor:
@@ -206,11 +216,13 @@ class DynamicalIK:
         return self._state
 
     # ------------------------------------------------------------------ the step
+    @torch.inference_mode()  # no autograd bookkeeping: at small batches it is a fifth of the step
     def step(self, targets: Targets, dt: float | torch.Tensor | None = None) -> tuple[State, StepDiagnostics]:
         """Advance by dt (default: the nominal dt; a scalar or [B]) towards `targets`.
 
         targets: Targets with n_p position and n_o orientation targets, batch B.
-        Returns the new State and the step's StepDiagnostics.
+        Returns the new State and the step's StepDiagnostics. Their tensors are inference tensors
+        (torch.inference_mode): use them freely, but clone one before using it in autograd.
         """
         start = time.perf_counter()
         q = self._require_state()
@@ -223,20 +235,31 @@ class DynamicalIK:
         # The residual compares the state with the targets at the same instant: t_{k-1} (midpoint
         # scheme) or, literally as in the paper, q_{k-1} with x(t_k).
         previous, before = self._history(x, clean)
-        R_B = orthonormalize(q.base_rotation)
+        R_B = self._rotation
+        kinematics_start = time.perf_counter()
         if self.scheme == "midpoint":
-            now = model(q.base_position, R_B, q.joint_positions, self._selection, jacobian=False)
             # the Jacobian at mid-step: q + dt/2 times the velocity at the step's first quarter,
             # extrapolated from the last two steps' velocities (each taken at its own midpoint)
             half = 0.5 * dt
             nu_ahead = q.velocity + self._velocity_slope * (0.5 * self._last_dt + 0.25 * dt)
-            J_full = model(q.base_position + half * nu_ahead[:, :3], orthonormalize(so3.exp(half * nu_ahead[:, 3:6]) @ R_B),
-                           q.joint_positions + half * nu_ahead[:, 6:], self._selection, out=self._buffers).jacobian
+            p_mid = q.base_position + half * nu_ahead[:, :3]
+            R_mid = so3.exp(half * nu_ahead[:, 3:6]) @ R_B
+            s_mid = q.joint_positions + half * nu_ahead[:, 6:]
+            if B <= self.STACK_BELOW and model.n_subjects == 1:
+                # small batches cost per operation, not per row: one call for both configurations
+                both = model(torch.cat((q.base_position, p_mid)), torch.cat((R_B, R_mid)),
+                             torch.cat((q.joint_positions, s_mid)), self._selection, out=self._buffers)
+                now = LinkKinematics(both.rotation[:B], both.position[:B], None)
+                J_full = both.jacobian[B:]
+            else:
+                now = model(q.base_position, R_B, q.joint_positions, self._selection, jacobian=False)
+                J_full = model(p_mid, R_mid, s_mid, self._selection, out=self._buffers).jacobian
             x_r = previous
             v_p, v_o = self._mean_velocity(before, previous, x, dt)
         else:
             now = model(q.base_position, R_B, q.joint_positions, self._selection, out=self._buffers)
             J_full, x_r, v_p, v_o = now.jacobian, x, x.linear_velocity, x.angular_velocity
+        kinematics_time = time.perf_counter() - kinematics_start
         R_hat = now.rotation.index_select(1, self._orientation_index)
         p_hat = now.position.index_select(1, self._position_index)
         r_p = x_r.position - p_hat
@@ -259,7 +282,9 @@ class DynamicalIK:
             G = torch.cat((A.new_zeros(A.shape[0], 6), A), dim=1).expand(B, -1, -1)
             h = linear_limit_bounds(q.joint_positions, A, model.linear_limits.b, self.limits, dt)
         problem = QPProblem(H, g, lb, ub, G, h)
+        qp_start = time.perf_counter()
         solution = self.backend.solve(problem, warm_start=q.velocity)
+        qp_time = time.perf_counter() - qp_start
         nu = solution.x
 
         p_next, R_next, s_next = integrate(q.base_position, q.base_rotation, q.joint_positions, nu, dt,
@@ -269,6 +294,7 @@ class DynamicalIK:
         self._last_dt = dt
         self._steps += 1
         self._state = State(p_next, R_next, s_next, nu)
+        self._rotation = orthonormalize(R_next)
 
         diagnostics = StepDiagnostics(
             mnte=self._mean_over_valid(orientation_error(previous.rotation, R_hat), clean.orientation_valid),
@@ -278,13 +304,15 @@ class DynamicalIK:
             dropped=clean.dropped,
             projected=clean.projected,
             step_time=time.perf_counter() - start,
+            kinematics_time=kinematics_time,
+            qp_time=qp_time,
         )
         return self.state, diagnostics
 
     def _history(self, x: Targets, clean) -> tuple[Targets, Targets | None]:
         """The targets one and two steps back, a dropped (non-finite) one replaced by the current;
         then remember the current ones."""
-        valid = (clean.position_valid, clean.orientation_valid)
+        valid = None if clean.all_valid else (clean.position_valid, clean.orientation_valid)
         if self._previous is None:
             previous, before = x, None
         else:
@@ -296,6 +324,8 @@ class DynamicalIK:
 
     @staticmethod
     def _substitute(old: Targets, old_valid, current: Targets) -> Targets:
+        if old_valid is None:  # nothing was dropped
+            return old
         p_ok, o_ok = old_valid
         pick_p = lambda a, b: torch.where(p_ok[..., None], a, b)  # noqa: E731
         pick_o = lambda a, b: torch.where(o_ok.view(o_ok.shape + (1,) * (a.dim() - 2)), a, b)  # noqa: E731
@@ -320,8 +350,10 @@ class DynamicalIK:
         return mean("linear_velocity"), mean("angular_velocity")
 
     def _time_step(self, dt, B: int) -> torch.Tensor:
+        if dt is None:
+            return self._nominal_dt
         kw = dict(dtype=self.model.dtype, device=self.model.device)
-        dt = torch.as_tensor(self.dt if dt is None else dt, **kw)
+        dt = torch.as_tensor(dt, **kw)
         if dt.dim() == 0:
             dt = dt.expand(B)
         if dt.shape != (B,) or not bool((dt > 0).all()) or not bool(torch.isfinite(dt).all()):
@@ -373,6 +405,7 @@ class DynamicalIK:
         stack = lambda name: torch.stack([getattr(s, name) for s in states])  # noqa: E731
         diagnostics = {name: torch.stack([getattr(d, name) for d in diags])
                        for name in ("mnte", "residual_norm", "active_constraints", "solved", "dropped", "projected")}
-        diagnostics["step_time"] = torch.tensor([d.step_time for d in diags], dtype=torch.float64)
+        for name in ("step_time", "kinematics_time", "qp_time"):
+            diagnostics[name] = torch.tensor([getattr(d, name) for d in diags], dtype=torch.float64)
         return Trajectory(time_, stack("base_position"), stack("base_rotation"), stack("joint_positions"),
                           stack("velocity"), diagnostics)

@@ -1,0 +1,45 @@
+"""targets: non-finite targets are dropped and counted, near-rotations projected, far ones refused."""
+
+import pytest
+import torch
+
+from torchik import InputError, so3
+from torchik.targets import Targets, check_targets, clean_targets
+
+
+def make(B=2, n_p=1, n_o=3, seed=0) -> Targets:
+    g = torch.Generator().manual_seed(seed)
+    return Targets(torch.randn(B, n_p, 3, generator=g, dtype=torch.float64), torch.randn(B, n_p, 3, generator=g, dtype=torch.float64),
+                   so3.random_rotation((B, n_o), g), torch.randn(B, n_o, 3, generator=g, dtype=torch.float64))
+
+
+def test_nan_targets_are_dropped_and_counted():
+    t = make()
+    t.rotation[1, 2, 0, 0] = float("nan")
+    t.linear_velocity[0, 0, 1] = float("inf")
+    clean = clean_targets(t)
+    assert clean.dropped.tolist() == [1, 1]
+    assert clean.orientation_valid.tolist() == [[True, True, True], [True, True, False]]
+    assert clean.position_valid.tolist() == [[False], [True]]
+    assert bool(torch.isfinite(clean.targets.rotation).all() and torch.isfinite(clean.targets.linear_velocity).all())
+
+
+def test_nearly_orthonormal_rotations_are_projected_and_counted():
+    t = make()
+    t.rotation[0, 1] += 1e-5
+    clean = clean_targets(t)
+    assert clean.projected.tolist() == [1, 0]
+    R = clean.targets.rotation[0, 1]
+    assert float((R.T @ R - torch.eye(3, dtype=torch.float64)).abs().max()) < 1e-14
+
+
+def test_a_matrix_far_from_a_rotation_is_refused_naming_it():
+    t = make()
+    t.rotation[1, 0] *= 2.0
+    with pytest.raises(InputError, match="target rotation 0 of subject 1 is not a rotation"):
+        clean_targets(t)
+
+
+def test_shapes_are_checked_with_the_expected_shape_in_the_message():
+    with pytest.raises(InputError, match=r"targets.rotation: expected shape \[2, 4, 3, 3\], got \[2, 3, 3, 3\]"):
+        check_targets(make(), 1, 4, torch.float64, torch.device("cpu"))
