@@ -511,7 +511,8 @@ class KinematicModel:
         T[:, 0, :3, 3] = p_base.T
         for up in self._jumps:
             T = torch.matmul(T.index_select(1, up), T)
-        return T[:, :F, :3, :3].permute(1, 2, 3, 0), T[:, :F, :3, 3].permute(1, 2, 0)
+        # contiguous batch-last copies: the gathers that follow are several times faster on them
+        return (T[:, :F, :3, :3].permute(1, 2, 3, 0).contiguous(), T[:, :F, :3, 3].permute(1, 2, 0).contiguous())
 
     def _jacobian(self, p_B, R, p, p_link, sel: LinkSelection, J: torch.Tensor) -> None:
         """Fill J [B,L,6,6+n]: base columns (I, -hat(p_L - p_B); 0, I), joint columns (a x (p_L - o); a)."""
@@ -530,7 +531,10 @@ class KinematicModel:
         else:  # torch's cross along a middle dimension is slow for large batches
             for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):  # the three components of a x r
                 torch.mul(a[:, j], r[:, k], out=columns[:, i]).addcmul_(a[:, k], r[:, j], value=-1.0)
-        J.view(B, -1).T.index_copy_(0, sel.pair_flat_index, columns.view(-1, B))
+        if B <= SMALL_BATCH:
+            J.view(B, -1).index_copy_(1, sel.pair_flat_index, columns.view(-1, B).T)
+        else:  # large batches: write through the transposed view, without transposing the columns
+            J.view(B, -1).T.index_copy_(0, sel.pair_flat_index, columns.view(-1, B))
 
     def zero_configuration(self, batch: int = 1) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The zero configuration: base at the origin, identity rotation, s = 0. Shapes [B,3], [B,3,3], [B,n]."""

@@ -54,13 +54,22 @@ def linear_limit_bounds(s: torch.Tensor, A: torch.Tensor, b: torch.Tensor, setti
 
 
 def velocity_bounds(s: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, settings: LimitSettings,
-                    dt: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Bounds on the whole nu = (p_dot_B, omega_B, s_dot). s: [B,n] -> lb, ub [B,6+n] (inf where free)."""
-    B = s.shape[0]
-    lb_s, ub_s = joint_velocity_bounds(s, lower, upper, settings, dt)
-    base = torch.full((B, 6), torch.inf, dtype=s.dtype, device=s.device)
+                    dt: torch.Tensor, base: tuple[torch.Tensor, torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Bounds on the whole nu = (p_dot_B, omega_B, s_dot). s: [B,n] -> lb, ub [B,6+n] (inf where free).
+
+    base: the base's bounds from `base_velocity_bounds` (computed here when not given).
+    """
+    gaps = torch.stack((upper - s, s - lower))  # [2,B,n]: towards the upper, towards the lower limit
+    bounds = _bound(gaps, settings.max_rate, settings.gain, dt)
+    base_lb, base_ub = base if base is not None else base_velocity_bounds(s.shape[0], settings, s.dtype, s.device)
+    return torch.cat((base_lb, -bounds[1]), dim=1), torch.cat((base_ub, bounds[0]), dim=1)
+
+
+def base_velocity_bounds(batch: int, settings: LimitSettings, dtype=torch.float64, device="cpu") -> tuple[torch.Tensor, torch.Tensor]:
+    """The base velocity's bounds: lb, ub [B,6], +-inf where free."""
+    ub = torch.full((batch, 6), torch.inf, dtype=dtype, device=device)
     if settings.base_linear is not None:
-        base[:, :3] = settings.base_linear
+        ub[:, :3] = settings.base_linear
     if settings.base_angular is not None:
-        base[:, 3:] = settings.base_angular
-    return torch.cat((-base, lb_s), dim=1), torch.cat((base, ub_s), dim=1)
+        ub[:, 3:] = settings.base_angular
+    return -ub, ub

@@ -22,10 +22,11 @@ def position_residual(p_target: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
 def orientation_residual(R_target: torch.Tensor, R_hat: torch.Tensor) -> torch.Tensor:
     """World-frame orientation residual R_hat sk(R_hat^T R_target)^vee.
 
-    R_target, R_hat: [B,n,3,3] link-to-world -> [B,n,3].
+    R_target, R_hat: [B,n,3,3] link-to-world (R_hat orthonormal) -> [B,n,3].
+    Computed as sk(R_target R_hat^T)^vee: conjugating sk(R_hat^T R_target) by R_hat gives
+    sk(R_target R_hat^T), and R_hat hat(v) R_hat^T = hat(R_hat v).
     """
-    local = so3.skew_vee(R_hat.transpose(-1, -2) @ R_target)
-    return (R_hat @ local.unsqueeze(-1)).squeeze(-1)
+    return so3.skew_vee(R_target @ R_hat.transpose(-1, -2))
 
 
 def orientation_error(R_target: torch.Tensor, R_hat: torch.Tensor) -> torch.Tensor:

@@ -64,16 +64,12 @@ def exp(w: torch.Tensor) -> torch.Tensor:
 
     w: [..., 3] -> [..., 3, 3]
     """
-    theta2 = (w * w).sum(-1, keepdim=True).unsqueeze(-1)
-    theta = theta2.sqrt()
-    small = theta2 < 1e-8
-    # Taylor series below 1e-4 rad: sin(t)/t and (1-cos t)/t^2 lose all digits there.
-    safe = torch.where(small, torch.ones_like(theta), theta)
-    a = torch.where(small, 1.0 - theta2 / 6.0, torch.sin(safe) / safe)
-    b = torch.where(small, 0.5 - theta2 / 24.0, (1.0 - torch.cos(safe)) / (safe * safe))
+    theta = (w * w).sum(-1, keepdim=True).unsqueeze(-1).sqrt()
+    # sin(t)/t = sinc(t/pi) and (1 - cos t)/t^2 = sinc(t/2pi)^2 / 2, both exact at t = 0
+    a = torch.sinc(theta / torch.pi)
+    b = 0.5 * torch.sinc(theta / (2 * torch.pi)).square()
     K = hat(w)
-    eye = torch.eye(3, dtype=w.dtype, device=w.device).expand_as(K)
-    return eye + a * K + b * (K @ K)
+    return torch.eye(3, dtype=w.dtype, device=w.device) + a * K + b * (K @ K)
 
 
 def axis_angle(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:

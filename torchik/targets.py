@@ -113,5 +113,5 @@ def clean_targets(targets: Targets, project_tolerance: float = 1e-2, orthonormal
         rotation = torch.where(near[..., None, None], so3.project(rotation), rotation)
         projected = near.sum(-1)
     cleaned = Targets(position, linear_velocity, rotation, angular_velocity)
-    dropped = (~p_ok).sum(-1) + (~o_ok).sum(-1)
+    dropped = projected.new_zeros(B) if all_valid else (~p_ok).sum(-1) + (~o_ok).sum(-1)
     return CleanTargets(cleaned, p_ok, o_ok, dropped, projected, all_valid)

@@ -39,7 +39,7 @@ from . import so3
 from .errors import InputError
 from .integrate import ROTATION_INTEGRATORS, integrate, orthonormalize
 from .kinematics import KinematicModel, LinkKinematics
-from .limits import LimitSettings, linear_limit_bounds, velocity_bounds
+from .limits import LimitSettings, base_velocity_bounds, linear_limit_bounds, velocity_bounds
 from .qp import QPProblem, make_backend
 from .residual import orientation_error, orientation_residual
 from .targets import Targets, check_targets, clean_targets
@@ -193,6 +193,7 @@ class DynamicalIK:
         self._nominal_dt = torch.full((B, 1), self.dt, **kw)
         self._last_dt = self._nominal_dt
         self._velocity_slope = torch.zeros_like(state.velocity)
+        self._base_bounds = base_velocity_bounds(B, self.limits, **kw)
         stacked = self.scheme == "midpoint" and B <= self.STACK_BELOW and self.model.n_subjects == 1
         rows = 2 * B if stacked else B
         self._buffers = self.model.empty_output(rows, self._selection)
@@ -275,7 +276,7 @@ class DynamicalIK:
         H = J.transpose(1, 2) @ J
         H.diagonal(dim1=1, dim2=2).add_(self.damping)
         g = -(J.transpose(1, 2) @ v_star.unsqueeze(-1)).squeeze(-1)
-        lb, ub = velocity_bounds(q.joint_positions, model.lower, model.upper, self.limits, dt)
+        lb, ub = velocity_bounds(q.joint_positions, model.lower, model.upper, self.limits, dt, self._base_bounds)
         G = h = None
         if model.linear_limits is not None:
             A = model.linear_limits.A
@@ -297,7 +298,8 @@ class DynamicalIK:
         self._rotation = orthonormalize(R_next)
 
         diagnostics = StepDiagnostics(
-            mnte=self._mean_over_valid(orientation_error(previous.rotation, R_hat), clean.orientation_valid),
+            mnte=orientation_error(previous.rotation, R_hat).mean(-1) if clean.all_valid
+            else self._mean_over_valid(orientation_error(previous.rotation, R_hat), clean.orientation_valid),
             residual_norm=torch.cat((r_p, r_o), dim=1).norm(dim=-1) * valid,
             active_constraints=self._active(problem, nu),
             solved=solution.solved,
@@ -337,14 +339,14 @@ class DynamicalIK:
         last three samples (weights -1/12, 8/12, 5/12 for even steps), or the trapezoid rule while
         there are only two. Returns linear [B,n_p,3] and angular [B,n_o,3] velocities."""
         if before is None:
-            w_before = torch.zeros_like(dt)
-            w_now = torch.full_like(dt, 0.5)
+            w_before, w_now = 0.0, 0.5
+        elif dt is self._nominal_dt and self._last_dt is self._nominal_dt:
+            w_before, w_now = -1.0 / 12.0, 5.0 / 12.0
         else:
             h1, h = self._last_dt, dt
-            w_before = -h * h / (6.0 * h1 * (h1 + h))
-            w_now = (h / 3.0 + h1 / 2.0) / (h + h1)
+            w_before = (-h * h / (6.0 * h1 * (h1 + h)))[:, :, None]  # [B,1,1]
+            w_now = ((h / 3.0 + h1 / 2.0) / (h + h1))[:, :, None]
         w_prev = 1.0 - w_now - w_before
-        w_before, w_prev, w_now = (w[:, :, None] for w in (w_before, w_prev, w_now))  # [B,1,1]
         mean = lambda name: (w_prev * getattr(previous, name) + w_now * getattr(current, name)  # noqa: E731
                              + (0.0 if before is None else w_before * getattr(before, name)))
         return mean("linear_velocity"), mean("angular_velocity")
@@ -366,14 +368,11 @@ class DynamicalIK:
         return (values * weight).sum(-1) / weight.sum(-1).clamp(min=1.0)
 
     @staticmethod
-    def _active(problem: QPProblem, x: torch.Tensor, tolerance: float = 1e-7) -> torch.Tensor:
-        """[B] bounds (lower or upper) and linear limits that the solution touches."""
-        at_lb = torch.isfinite(problem.lb) & ((x - problem.lb).abs() <= tolerance * (1.0 + problem.lb.abs()))
-        at_ub = torch.isfinite(problem.ub) & ((problem.ub - x).abs() <= tolerance * (1.0 + problem.ub.abs()))
-        count = (at_lb | at_ub).sum(-1)
+    def _active(problem: QPProblem, x: torch.Tensor, tolerance: float = 1e-9) -> torch.Tensor:
+        """[B] bounds (lower or upper) and linear limits that the solution touches (infinite ones never)."""
+        count = ((x <= problem.lb + tolerance) | (x >= problem.ub - tolerance)).sum(-1)
         if problem.G is not None:
-            slack = problem.h - (problem.G @ x.unsqueeze(-1)).squeeze(-1)
-            count = count + (slack.abs() <= tolerance * (1.0 + problem.h.abs())).sum(-1)
+            count = count + ((problem.G @ x.unsqueeze(-1)).squeeze(-1) >= problem.h - tolerance).sum(-1)
         return count
 
     # ------------------------------------------------------------------ whole sequences

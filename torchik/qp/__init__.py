@@ -6,7 +6,7 @@
 batched solver in torch) fills the same `QPBackend.solve`.
 """
 
-from .base import QPBackend, QPProblem, QPSolution, clipped_fallback
+from .base import QPBackend, QPProblem, QPSolution, clipped_fallback, unconstrained_if_feasible
 from .piqp_backend import PiqpBackend
 
 BACKENDS = {"piqp": PiqpBackend}
@@ -21,4 +21,4 @@ def make_backend(name: str, **options) -> QPBackend:
     return BACKENDS[name](**options)
 
 
-__all__ = ["QPBackend", "QPProblem", "QPSolution", "PiqpBackend", "clipped_fallback", "make_backend", "BACKENDS"]
+__all__ = ["QPBackend", "QPProblem", "QPSolution", "PiqpBackend", "clipped_fallback", "unconstrained_if_feasible", "make_backend", "BACKENDS"]

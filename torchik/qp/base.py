@@ -42,6 +42,21 @@ class QPBackend(ABC):
         ...
 
 
+def unconstrained_if_feasible(problem: QPProblem) -> tuple[torch.Tensor, torch.Tensor]:
+    """The unconstrained minimiser -H^-1 g and where it is already the QP's solution.
+
+    For a convex QP, a minimiser of the objective alone that satisfies every bound and linear limit
+    (strictly, no tolerance) is the constrained optimum too; a solver is needed only elsewhere.
+    Returns x [B,N] and feasible [B] bool (False also where H is not numerically positive definite).
+    """
+    L, info = torch.linalg.cholesky_ex(problem.H)
+    x = torch.cholesky_solve(-problem.g.unsqueeze(-1), L).squeeze(-1)
+    feasible = (info == 0) & torch.isfinite(x).all(-1) & (x >= problem.lb).all(-1) & (x <= problem.ub).all(-1)
+    if problem.G is not None:
+        feasible &= ((problem.G @ x.unsqueeze(-1)).squeeze(-1) <= problem.h).all(-1)
+    return x, feasible
+
+
 def clipped_fallback(problem: QPProblem) -> torch.Tensor:
     """The nearest feasible velocity a failed solve can fall back to. -> [B,N]
 

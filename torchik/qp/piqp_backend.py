@@ -1,13 +1,14 @@
 """PIQP through qpsolvers, one subject at a time. Box limits go in as lb/ub (about twice as fast
 as writing them into G x <= h). PIQP is an interior-point method and takes no warm start
-(qpsolvers ignores `initvals` for it), so `warm_start` is accepted for the interface and unused."""
+(qpsolvers ignores `initvals` for it), so `warm_start` is accepted for the interface and unused.
+Subjects whose unconstrained minimiser already satisfies every limit skip the solver (exactly)."""
 
 from __future__ import annotations
 
 import numpy as np
 import torch
 
-from .base import QPBackend, QPProblem, QPSolution, clipped_fallback
+from .base import QPBackend, QPProblem, QPSolution, clipped_fallback, unconstrained_if_feasible
 
 
 class PiqpBackend(QPBackend):
@@ -26,22 +27,23 @@ class PiqpBackend(QPBackend):
         self.eps_abs, self.eps_rel = eps_abs, eps_rel
 
     def solve(self, problem: QPProblem, warm_start: torch.Tensor | None = None) -> QPSolution:
-        H, g = problem.H.detach().cpu().double().numpy(), problem.g.detach().cpu().double().numpy()
-        lb, ub = problem.lb.detach().cpu().double().numpy(), problem.ub.detach().cpu().double().numpy()
-        G = None if problem.G is None else problem.G.detach().cpu().double().numpy()
-        h = None if problem.h is None else problem.h.detach().cpu().double().numpy()
-        B, N = g.shape
-        x = np.zeros((B, N))
-        solved = np.zeros(B, dtype=bool)
-        for b in range(B):  # PIQP solves one problem per call; the batched backend removes this loop
+        # Where the unconstrained minimiser already satisfies every limit it is the exact solution;
+        # PIQP is called for the other subjects only.
+        x, done = unconstrained_if_feasible(problem)
+        if bool(done.all()):
+            return QPSolution(x, done)
+        rows = (~done).nonzero().flatten().tolist()
+        numpy = lambda t: None if t is None else t.detach().cpu().double().numpy()  # noqa: E731
+        H, g, lb, ub, G, h = (numpy(t) for t in (problem.H, problem.g, problem.lb, problem.ub, problem.G, problem.h))
+        solved = torch.ones_like(done)
+        for b in rows:  # PIQP solves one problem per call; the batched backend removes this loop
             qp = self._qpsolvers.Problem(H[b], g[b], None if G is None else G[b], None if h is None else h[b],
                                          lb=lb[b], ub=ub[b])
-            solution = self._qpsolvers.solve_problem(
-                qp, solver="piqp", eps_abs=self.eps_abs, eps_rel=self.eps_rel)
+            solution = self._qpsolvers.solve_problem(qp, solver="piqp", eps_abs=self.eps_abs, eps_rel=self.eps_rel)
             if solution.found and solution.x is not None and np.all(np.isfinite(solution.x)):
-                x[b], solved[b] = solution.x, True
-        out = torch.from_numpy(x).to(dtype=problem.g.dtype, device=problem.g.device)
-        ok = torch.from_numpy(solved).to(problem.g.device)
-        if not bool(ok.all()):
-            out = torch.where(ok[:, None], out, clipped_fallback(problem))
-        return QPSolution(out, ok)
+                x[b] = torch.tensor(solution.x, dtype=x.dtype, device=x.device)
+            else:
+                solved[b] = False
+        if not bool(solved.all()):
+            x = torch.where(solved[:, None], x, clipped_fallback(problem))
+        return QPSolution(x, solved)
