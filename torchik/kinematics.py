@@ -54,12 +54,14 @@ class LinkKinematics:
     """Poses and Jacobians of a selection of links for a batch of configurations.
 
     rotation: [B,L,3,3] link-to-world; position: [B,L,3] world;
-    jacobian: [B,L,6,6+n] mixed representation, rows (linear; angular), or None if not asked.
+    jacobian: [B,L_j,6,6+n] mixed representation, rows (linear; angular), or None if not asked;
+    joint_axes: [B,n,3] every joint's axis in the world frame, or None if not asked.
     """
 
     rotation: torch.Tensor
     position: torch.Tensor
     jacobian: torch.Tensor | None
+    joint_axes: torch.Tensor | None = None
 
 
 @dataclass(frozen=True)
@@ -423,6 +425,8 @@ class KinematicModel:
         links: Sequence[str] | LinkSelection,
         jacobian: bool = True,
         out: LinkKinematics | None = None,
+        jacobian_links: Sequence[str] | LinkSelection | None = None,
+        joint_axes: bool = False,
     ) -> LinkKinematics:
         """World poses and mixed-representation Jacobians of the chosen links.
 
@@ -430,7 +434,10 @@ class KinematicModel:
         (order `joint_names`); links: names or a `select(...)` result.
         Returns LinkKinematics with rotation [B,L,3,3], position [B,L,3], jacobian [B,L,6,6+n].
 
-        out: buffers from `empty_output(B, links)` to write into instead of allocating (what a
+        jacobian_links: Jacobians of other links than the poses (default: the same);
+        joint_axes: also return the joints' world axes [B,n,3] (what the orientation part of a
+        tracking task needs, see torchik.task).
+        out: buffers from `empty_output(B, links, ...)` to write into instead of allocating (what a
         tracker does every step: a fresh 80 MB Jacobian costs more in page faults than in
         arithmetic). The Jacobian's structural zeros are written when the buffer is made and not
         again, so write nothing into it yourself.
@@ -441,35 +448,56 @@ class KinematicModel:
         self._check("joint_positions", joint_positions, (B, self.n_dof))
         if self.n_subjects not in (1, B):
             raise InputError(f"this model holds {self.n_subjects} subjects; the batch has {B} rows")
-        sel = links if isinstance(links, LinkSelection) else self.select(links)
+        sel = self._selection(links)
+        jsel = sel if jacobian_links is None else self._selection(jacobian_links)
         if out is None:
-            out = self.empty_output(B, sel, jacobian)
-        elif out.position.shape != (B, len(sel.names), 3) or (jacobian and out.jacobian is None):
-            raise InputError(f"out: expected buffers from empty_output({B}, links) for {len(sel.names)} links")
+            out = self.empty_output(B, sel, jacobian, jsel)
+        elif out.position.shape != (B, len(sel.names), 3) or (
+                jacobian and (out.jacobian is None or out.jacobian.shape[1] != len(jsel.names))):
+            raise InputError(f"out: expected buffers from empty_output({B}, links, ...) for {len(sel.names)} links")
 
         R, p = self._frame_poses(base_position, base_rotation, joint_positions)  # [F,3,3,B], [F,3,B]
-        R_link, p_link = R.index_select(0, sel.anchor), p.index_select(0, sel.anchor)
-        if not sel.offsets_are_identity:
-            p_link = p_link + _matvec_soa(R_link, sel.offset_position)
-            R_link = _matmul_soa(R_link, sel.offset_rotation.expand_as(R_link))
-        out.rotation.copy_(R_link.permute(3, 0, 1, 2))
-        out.position.copy_(p_link.permute(2, 0, 1))
+        p_link = self._link_poses(R, p, sel, out)
+        axis = None
+        if jacobian or joint_axes:
+            axis = _matvec_soa(R.index_select(0, self._joint_frame), self._joint_axes)  # [n,3,B] world axes
         if jacobian:
-            self._jacobian(base_position, R, p, p_link, sel, out.jacobian)
+            p_jacobian = p_link if jsel is sel else self._link_poses(R, p, jsel, None)
+            self._jacobian(base_position, axis, p, p_jacobian, jsel, out.jacobian)
+        if joint_axes:
+            return LinkKinematics(out.rotation, out.position, out.jacobian, axis.permute(2, 0, 1))
         return out
 
     __call__ = forward
 
-    def empty_output(self, batch: int, links: Sequence[str] | LinkSelection, jacobian: bool = True) -> LinkKinematics:
-        """Buffers for `forward(..., out=...)`: rotation [B,L,3,3], position [B,L,3], jacobian [B,L,6,6+n]."""
-        sel = links if isinstance(links, LinkSelection) else self.select(links)
-        L, kw = len(sel.names), dict(dtype=self.dtype, device=self.device)
+    def _selection(self, links: Sequence[str] | LinkSelection) -> LinkSelection:
+        return links if isinstance(links, LinkSelection) else self.select(links)
+
+    @staticmethod
+    def _link_poses(R, p, sel: LinkSelection, out: LinkKinematics | None) -> torch.Tensor:
+        """Link poses from the skeleton frames; written into `out` when given. Returns p [L,3,B]."""
+        R_link, p_link = R.index_select(0, sel.anchor), p.index_select(0, sel.anchor)
+        if not sel.offsets_are_identity:
+            p_link = p_link + _matvec_soa(R_link, sel.offset_position)
+            R_link = _matmul_soa(R_link, sel.offset_rotation.expand_as(R_link))
+        if out is not None:
+            out.rotation.copy_(R_link.permute(3, 0, 1, 2))
+            out.position.copy_(p_link.permute(2, 0, 1))
+        return p_link
+
+    def empty_output(self, batch: int, links: Sequence[str] | LinkSelection, jacobian: bool = True,
+                     jacobian_links: Sequence[str] | LinkSelection | None = None) -> LinkKinematics:
+        """Buffers for `forward(..., out=...)`: rotation [B,L,3,3], position [B,L,3], jacobian [B,L_j,6,6+n]."""
+        sel = self._selection(links)
+        jsel = sel if jacobian_links is None else self._selection(jacobian_links)
+        kw = dict(dtype=self.dtype, device=self.device)
         J = None
         if jacobian:
-            J = torch.zeros(batch, L, 6, 6 + self.n_dof, **kw)
+            J = torch.zeros(batch, len(jsel.names), 6, 6 + self.n_dof, **kw)
             eye = torch.eye(3, **kw)
             J[:, :, 0:3, 0:3] = eye
             J[:, :, 3:6, 3:6] = eye
+        L = len(sel.names)
         return LinkKinematics(torch.empty(batch, L, 3, 3, **kw), torch.empty(batch, L, 3, **kw), J)
 
     def _frame_poses(self, p_B, R_B, s) -> tuple[torch.Tensor, torch.Tensor]:
@@ -514,10 +542,10 @@ class KinematicModel:
         # contiguous batch-last copies: the gathers that follow are several times faster on them
         return (T[:, :F, :3, :3].permute(1, 2, 3, 0).contiguous(), T[:, :F, :3, 3].permute(1, 2, 0).contiguous())
 
-    def _jacobian(self, p_B, R, p, p_link, sel: LinkSelection, J: torch.Tensor) -> None:
-        """Fill J [B,L,6,6+n]: base columns (I, -hat(p_L - p_B); 0, I), joint columns (a x (p_L - o); a)."""
+    def _jacobian(self, p_B, axis, p, p_link, sel: LinkSelection, J: torch.Tensor) -> None:
+        """Fill J [B,L,6,6+n]: base columns (I, -hat(p_L - p_B); 0, I), joint columns (a x (p_L - o); a).
+        axis: [n,3,B] world joint axes; p: [F,3,B] frame positions; p_link: [L,3,B]."""
         B, L = J.shape[0], J.shape[1]
-        axis = _matvec_soa(R.index_select(0, self._joint_frame), self._joint_axes)  # [n,3,B] world axes
         origin = p.index_select(0, self._joint_frame) - p_B.T  # [n,3,B] joint origins relative to the base
         d = p_link - p_B.T  # [L,3,B]
         J[:, :, 0:3, 3:6] = so3.hat(-d.permute(2, 0, 1))

@@ -43,6 +43,7 @@ from .limits import LimitSettings, base_velocity_bounds, linear_limit_bounds, ve
 from .qp import QPProblem, make_backend
 from .residual import orientation_error, orientation_residual
 from .targets import Targets, check_targets, clean_targets
+from .task import TaskStructure, normal_equations
 
 SCHEMES = {"midpoint": 2.0, "paper": 2.0}  # scheme -> linear stability bound on K dt
 
@@ -157,6 +158,7 @@ class DynamicalIK:
         self.orientation_links = tuple(orientation_links)
         links = tuple(dict.fromkeys(self.position_links + self.orientation_links))
         self._selection = model.select(links)  # raises UnknownLinkError for a bad name
+        self._task = TaskStructure.build(model, self.orientation_links, self.position_links)
         index = {name: i for i, name in enumerate(links)}
         long = dict(dtype=torch.long, device=model.device)
         self._position_index = torch.tensor([index[n] for n in self.position_links], **long)
@@ -196,7 +198,8 @@ class DynamicalIK:
         self._base_bounds = base_velocity_bounds(B, self.limits, **kw)
         stacked = self.scheme == "midpoint" and B <= self.STACK_BELOW and self.model.n_subjects == 1
         rows = 2 * B if stacked else B
-        self._buffers = self.model.empty_output(rows, self._selection)
+        self._buffers = self.model.empty_output(rows, self._selection, self._task.position is not None,
+                                                self._task.position)
         return self.state
 
     @property
@@ -246,36 +249,33 @@ class DynamicalIK:
             p_mid = q.base_position + half * nu_ahead[:, :3]
             R_mid = so3.exp(half * nu_ahead[:, 3:6]) @ R_B
             s_mid = q.joint_positions + half * nu_ahead[:, 6:]
+            task = dict(jacobian=self._task.position is not None, jacobian_links=self._task.position, joint_axes=True)
             if B <= self.STACK_BELOW and model.n_subjects == 1:
                 # small batches cost per operation, not per row: one call for both configurations
                 both = model(torch.cat((q.base_position, p_mid)), torch.cat((R_B, R_mid)),
-                             torch.cat((q.joint_positions, s_mid)), self._selection, out=self._buffers)
+                             torch.cat((q.joint_positions, s_mid)), self._selection, out=self._buffers, **task)
                 now = LinkKinematics(both.rotation[:B], both.position[:B], None)
-                J_full = both.jacobian[B:]
+                mid = LinkKinematics(None, None, None if both.jacobian is None else both.jacobian[B:], both.joint_axes[B:])
             else:
                 now = model(q.base_position, R_B, q.joint_positions, self._selection, jacobian=False)
-                J_full = model(p_mid, R_mid, s_mid, self._selection, out=self._buffers).jacobian
+                mid = model(p_mid, R_mid, s_mid, self._selection, out=self._buffers, **task)
             x_r = previous
             v_p, v_o = self._mean_velocity(before, previous, x, dt)
         else:
-            now = model(q.base_position, R_B, q.joint_positions, self._selection, out=self._buffers)
-            J_full, x_r, v_p, v_o = now.jacobian, x, x.linear_velocity, x.angular_velocity
+            now = mid = model(q.base_position, R_B, q.joint_positions, self._selection, out=self._buffers,
+                              jacobian=self._task.position is not None, jacobian_links=self._task.position,
+                              joint_axes=True)
+            x_r, v_p, v_o = x, x.linear_velocity, x.angular_velocity
         kinematics_time = time.perf_counter() - kinematics_start
         R_hat = now.rotation.index_select(1, self._orientation_index)
         p_hat = now.position.index_select(1, self._position_index)
         r_p = x_r.position - p_hat
         r_o = orientation_residual(x_r.rotation, R_hat)
-        v_star = torch.cat((v_p + self.position_gain[:, None] * r_p, v_o + self.orientation_gain[:, None] * r_o), dim=1)
-        J = torch.cat((J_full.index_select(1, self._position_index)[:, :, :3],
-                       J_full.index_select(1, self._orientation_index)[:, :, 3:]), dim=1)  # [B,n_t,3,N]
-        valid = torch.cat((clean.position_valid, clean.orientation_valid), dim=1).to(J.dtype)  # [B,n_t]
-        J = (J * valid[:, :, None, None]).flatten(1, 2)  # dropped targets: zero rows
-        v_star = (v_star * valid[:, :, None]).flatten(1)
-
-        N = J.shape[-1]
-        H = J.transpose(1, 2) @ J
-        H.diagonal(dim1=1, dim2=2).add_(self.damping)
-        g = -(J.transpose(1, 2) @ v_star.unsqueeze(-1)).squeeze(-1)
+        weights = (None, None) if clean.all_valid else (clean.position_valid.to(q.velocity.dtype),
+                                                        clean.orientation_valid.to(q.velocity.dtype))
+        H, g = normal_equations(self._task, mid.joint_axes, mid.jacobian,
+                                v_p + self.position_gain[:, None] * r_p, v_o + self.orientation_gain[:, None] * r_o,
+                                self.damping, *weights)
         lb, ub = velocity_bounds(q.joint_positions, model.lower, model.upper, self.limits, dt, self._base_bounds)
         G = h = None
         if model.linear_limits is not None:
@@ -300,7 +300,8 @@ class DynamicalIK:
         diagnostics = StepDiagnostics(
             mnte=orientation_error(previous.rotation, R_hat).mean(-1) if clean.all_valid
             else self._mean_over_valid(orientation_error(previous.rotation, R_hat), clean.orientation_valid),
-            residual_norm=torch.cat((r_p, r_o), dim=1).norm(dim=-1) * valid,
+            residual_norm=torch.cat((r_p, r_o), dim=1).norm(dim=-1) * torch.cat(
+                (clean.position_valid, clean.orientation_valid), dim=1),
             active_constraints=self._active(problem, nu),
             solved=solution.solved,
             dropped=clean.dropped,
