@@ -32,3 +32,19 @@ def test_bad_input_exits_2_with_one_line():
     assert result.stderr.strip().count("\n") == 0 and "give metres" in result.stderr
     assert "Traceback" not in result.stderr
     assert run("models", "--links", "robot").returncode == 2  # argparse's own check
+
+
+def test_convert_and_info_on_an_mvnx_file(tmp_path):
+    from test_mvnx import mvnx_text
+
+    source = tmp_path / "spin.mvnx"
+    source.write_text(mvnx_text(30))
+    out = tmp_path / "spin.npz"
+    result = run("convert", str(source), str(out))
+    assert result.returncode == 0, result.stderr
+    assert run("convert", str(source), str(out)).returncode == 2  # exists: needs --force
+    assert run("convert", str(source), str(out), "--force").returncode == 0
+    info = run("info", str(out))
+    assert info.returncode == 0 and "30 frames, 100.00 Hz" in info.stdout and "Pelvis, Head" in info.stdout
+    bad = run("info", str(tmp_path / "walk.xyz"))
+    assert bad.returncode == 2 and "unsupported format '.xyz'" in bad.stderr and "Traceback" not in bad.stderr

@@ -9,6 +9,8 @@ from .errors import TorchikError
 
 EXAMPLES = """examples:
   torchik models                          list the models with their DoF, links and limits
+  torchik info walk.mvnx                  segments, rate, duration and gaps of a recording
+  torchik convert walk.mvnx walk.npz      convert to torchik's recording format
   torchik models --links human48          also list each model's links and joint limits
   torchik models --write models/          write human66.urdf and human48.urdf (subject 1)
   torchik models --write out/ --height 1.85 --mass 80 --segment RightUpperArm=0.31
@@ -34,6 +36,49 @@ def _models(args: argparse.Namespace) -> int:
             if model.linear_limits is not None:
                 for row in model.linear_limits.names:
                     print(f"    coupled: {row}")
+    return 0
+
+
+def read_any(path: str):
+    """A Recording from any supported file, by its suffix."""
+    from pathlib import Path
+
+    from .io import RecordingError, load_recording, read_mvnx
+
+    readers = {".npz": load_recording, ".mvnx": read_mvnx}
+    suffix = Path(path).suffix.lower()
+    if suffix not in readers:
+        raise RecordingError(f"{path}: unsupported format {suffix!r}; supported: {', '.join(readers)}")
+    return readers[suffix](path)
+
+
+def _info(args: argparse.Namespace) -> int:
+    rec = read_any(args.file)
+    print(f"{args.file}: {len(rec.time)} frames, {rec.frame_rate:.2f} Hz, {rec.duration:.3f} s, "
+          f"{len(rec.links)} segments, base {rec.base_link}")
+    print(f"    segments: {', '.join(rec.links)}")
+    gaps = rec.gaps()
+    print(f"    gaps (frames missing per segment): {gaps if gaps else 'none'}")
+    if rec.joint_names:
+        print(f"    ground truth: {len(rec.joint_names)} joint positions")
+    if rec.meta.get("calibration"):
+        print(f"    calibration frames: {', '.join(rec.meta['calibration'])}")
+    return 0
+
+
+def _convert(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .io import RecordingError, save_recording
+
+    out = Path(args.output)
+    if out.suffix != ".npz":
+        raise RecordingError(f"{out}: the output must be a .npz recording")
+    if out.exists() and not args.force:
+        raise RecordingError(f"{out} exists; add --force to overwrite it")
+    rec = read_any(args.input)
+    save_recording(rec, out)
+    print(f"wrote {out}: {len(rec.time)} frames, {len(rec.links)} segments")
     return 0
 
 
@@ -64,6 +109,18 @@ def build_parser() -> argparse.ArgumentParser:
     models.add_argument("--segment", type=_segment, action="append", metavar="NAME=METRES",
                         help="a measured segment length, e.g. RightUpperArm=0.31 (repeatable)")
     models.set_defaults(run=_models)
+
+    info = sub.add_parser("info", help="print a recording's segments, rate, duration and gaps",
+                          epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    info.add_argument("file", help="a recording (.npz) or a source file (.mvnx)")
+    info.set_defaults(run=_info)
+
+    convert = sub.add_parser("convert", help="convert a source file to a torchik recording (.npz)",
+                             epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    convert.add_argument("input", help="a source file (.mvnx) or a recording (.npz)")
+    convert.add_argument("output", help="the recording to write (.npz)")
+    convert.add_argument("--force", action="store_true", help="overwrite the output if it exists")
+    convert.set_defaults(run=_convert)
     return parser
 
 

@@ -1,0 +1,7 @@
+"""Motion data: the recording format and readers for Xsens MVNX (BVH and C3D to follow)."""
+
+from .recording import Recording, RecordingError, angular_velocity_from_orientations, load_recording, save_recording
+from .mvnx import read_mvnx
+
+__all__ = ["Recording", "RecordingError", "load_recording", "save_recording", "read_mvnx",
+           "angular_velocity_from_orientations"]
