@@ -1,0 +1,103 @@
+"""io.bvh: BVH hierarchies to world rotations (channel order honoured), units told apart, velocities from the data."""
+
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from torchik import so3
+from torchik.io import RecordingError
+from torchik.io.bvh import read_bvh
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "bvh"
+
+
+def bvh_text(order=("Z", "X", "Y"), frames=40, dt=0.01, unit=1.0, rate_deg=90.0, arm_angles=(10.0, 20.0, 30.0)):
+    """A 1.75-unit-per-cm-tall figure: Hips (6 channels) rising along Y and spinning about Y at rate_deg deg/s,
+    a Leg down to the floor, and an Arm with constant Euler angles."""
+    rotation = " ".join(f"{a}rotation" for a in order)
+    lines = ["HIERARCHY", "ROOT Hips", "{", "  OFFSET 0 0 0", f"  CHANNELS 6 Xposition Yposition Zposition {rotation}",
+             "  JOINT Leg", "  {", f"    OFFSET 0 {-85 * unit} 0", f"    CHANNELS 3 {rotation}",
+             "    End Site", "    {", f"      OFFSET 0 {-5 * unit} 0", "    }", "  }",
+             "  JOINT Spine", "  {", f"    OFFSET 0 {50 * unit} 0", f"    CHANNELS 3 {rotation}",
+             "    JOINT Arm", "    {", f"      OFFSET {20 * unit} {40 * unit} 0", f"      CHANNELS 3 {rotation}",
+             "      End Site", "      {", f"        OFFSET {60 * unit} 0 0", "      }", "    }", "  }", "}",
+             "MOTION", f"Frames: {frames}", f"Frame Time: {dt}"]
+    for k in range(frames):
+        hips = {"X": 0.0, "Y": rate_deg * k * dt, "Z": 0.0}
+        arm = dict(zip(order, arm_angles))
+        row = ([0.0, 90 * unit + 10 * unit * k * dt, 0.0] + [hips[a] for a in order] + [0, 0, 0] + [0, 0, 0]
+               + [arm[a] for a in order])
+        lines.append(" ".join(f"{v:.10f}" for v in row))
+    return "\n".join(lines) + "\n"
+
+
+def euler(order, angles_deg):
+    R = torch.eye(3, dtype=torch.float64)
+    for axis, angle in zip(order, angles_deg):
+        w = torch.zeros(3, dtype=torch.float64)
+        w["XYZ".index(axis)] = np.radians(angle)
+        R = R @ so3.exp(w)
+    return R.numpy()
+
+
+Y_UP_TO_Z_UP = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+@pytest.mark.parametrize("order", list(itertools.permutations("XYZ")))
+def test_every_channel_order_composes_rotations_in_the_listed_order(tmp_path, order):
+    path = tmp_path / "a.bvh"
+    path.write_text(bvh_text(order=order))
+    rec = read_bvh(path, units="cm")
+    hips_at_5 = euler(("Y",), (90.0 * 5 * 0.01,))
+    expected_arm = Y_UP_TO_Z_UP @ hips_at_5 @ euler(order, (10.0, 20.0, 30.0))
+    assert rec.links == ("Hips", "Leg", "Spine", "Arm")
+    assert np.allclose(rec.orientation[5, 3], expected_arm, atol=1e-12)
+
+
+def test_a_spin_about_the_vertical_gives_the_expected_angular_velocity_and_positions(tmp_path):
+    path = tmp_path / "spin.bvh"
+    path.write_text(bvh_text())
+    rec = read_bvh(path)
+    assert rec.meta["units"] == "cm" and rec.base_link == "Hips"
+    # 90 deg/s about BVH's Y, which is torchik's z
+    assert np.allclose(rec.angular_velocity[:, 0], [0.0, 0.0, np.pi / 2], atol=1e-9)
+    assert np.allclose(rec.base_position[:, 2], 0.9 + 0.1 * rec.time)  # rising 10 cm/s, in metres
+    assert np.allclose(rec.base_linear_velocity, [0.0, 0.0, 0.1])
+    assert np.allclose(rec.time[1] - rec.time[0], 0.01)
+
+
+@pytest.mark.parametrize("unit,name", [(1.0, "cm"), (0.01, "m"), (1 / 2.54, "inch")])
+def test_units_are_told_apart_by_the_skeleton_height(tmp_path, unit, name):
+    path = tmp_path / "u.bvh"
+    path.write_text(bvh_text(unit=unit))
+    rec = read_bvh(path)
+    assert rec.meta["units"] == name and np.isclose(rec.base_position[0, 2], 0.9)
+
+
+def test_undecidable_units_and_malformed_files_are_errors_that_say_why(tmp_path):
+    path = tmp_path / "tiny.bvh"
+    path.write_text(bvh_text(unit=0.057))  # 10 units tall: no unit makes that a person
+    with pytest.raises(RecordingError, match="cannot tell the units.*give units="):
+        read_bvh(path)
+    assert read_bvh(path, scale=0.175).meta["metres_per_unit"] == 0.175
+    path.write_text(bvh_text().replace("CHANNELS 3", "CHANNELS 4", 1))
+    with pytest.raises(RecordingError, match=r"tiny.bvh: line \d+: CHANNELS 4 lists 3 channels"):
+        read_bvh(path)
+    text = bvh_text()
+    path.write_text(text[: len(text) // 2])
+    with pytest.raises(RecordingError, match="40 frames announced"):
+        read_bvh(path)
+
+
+@pytest.mark.skipif(not SHARED.is_dir(), reason="../shared/data absent")
+@pytest.mark.parametrize("name", ["bandai_walk_normal_001.bvh", "bandai_run_normal_001.bvh", "cmu_131_01.bvh"])
+def test_the_real_bvh_files_convert(name):
+    rec = read_bvh(SHARED / name)
+    R = rec.orientation
+    assert np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max() < 1e-9
+    assert 0.6 < np.median(rec.base_position[:, 2]) < 1.1  # the hips about a metre above the floor
+    speed = np.median(np.linalg.norm(rec.base_linear_velocity[:, :2], axis=-1))
+    assert (1.0 < speed < 1.3) if "walk" in name else (3.0 < speed < 4.2) if "run" in name else speed < 1.5

@@ -1,0 +1,216 @@
+"""BVH (Biovision hierarchy) to a Recording.
+
+- Rotations are Euler angles in degrees, in the order each joint's CHANNELS lists them:
+  `Zrotation Xrotation Yrotation` means R = Rz(z) Rx(x) Ry(y) (child frame to parent frame).
+- A joint's translation from its parent is its position channels when it has them (Bandai's
+  exporter writes the full translation there), otherwise its OFFSET.
+- Units: centimetres, metres, inches, or CMU's 1/0.45 inch, told apart by the height of the posed
+  skeleton in the first frame (the ranges a person's height can take in each do not overlap);
+  `units=` or `scale=` overrides, and an undecidable file is an error asking for them.
+- The BVH world is Y-up; torchik's is z-up, x forward: (X, Y, Z)_bvh -> (Z, X, Y).
+- Segment frames are the bones' own, not anatomical ones: a link map calibrates the constant
+  offset to a model's links.
+- Angular velocity: central differences on SO(3); base velocity: central differences.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import so3
+from .recording import Recording, RecordingError, angular_velocity_from_orientations
+
+UNITS = {"cm": 0.01, "m": 1.0, "inch": 0.0254, "cmu": 0.0254 / 0.45}
+HEIGHT_RANGE_M = (1.05, 2.25)  # vertical extent of a person's joints, metres: disjoint across UNITS
+Y_UP_TO_Z_UP = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+@dataclass
+class _Joint:
+    name: str
+    parent: int
+    offset: np.ndarray
+    channels: list[str]
+    first_channel: int
+
+
+def _axis_rotation(axis: str, degrees: np.ndarray) -> np.ndarray:
+    """[T] angles -> [T,3,3] rotation about x, y or z."""
+    a = np.radians(degrees)
+    c, s, one, zero = np.cos(a), np.sin(a), np.ones_like(a), np.zeros_like(a)
+    rows = {"X": (one, zero, zero, zero, c, -s, zero, s, c),
+            "Y": (c, zero, s, zero, one, zero, -s, zero, c),
+            "Z": (c, -s, zero, s, c, zero, zero, zero, one)}[axis]
+    return np.stack(rows, -1).reshape(a.shape + (3, 3))
+
+
+def _parse(path: Path) -> tuple[list[_Joint], np.ndarray, float]:
+    lines = path.read_text(errors="replace").splitlines()
+    joints: list[_Joint] = []
+    stack: list[int] = []
+    n_channels = 0
+    k = 0
+    pending: _Joint | None = None
+    in_end_site = 0
+
+    def fail(message: str):
+        raise RecordingError(f"{path}: line {k + 1}: {message}")
+
+    while k < len(lines):
+        tokens = lines[k].split()
+        k += 1
+        if not tokens:
+            continue
+        word = tokens[0].upper()
+        if word == "HIERARCHY":
+            continue
+        if word in ("ROOT", "JOINT"):
+            if len(tokens) < 2:
+                fail(f"{word} without a name")
+            pending = _Joint(" ".join(tokens[1:]), stack[-1] if stack else -1, np.zeros(3), [], 0)
+        elif word == "END":
+            in_end_site = 1
+        elif word == "{":
+            if in_end_site:
+                in_end_site = 2
+            elif pending is not None:
+                joints.append(pending)
+                stack.append(len(joints) - 1)
+                pending = None
+            else:
+                fail("'{' without a joint")
+        elif word == "}":
+            if in_end_site == 2:
+                in_end_site = 0
+            elif stack:
+                stack.pop()
+            else:
+                fail("unbalanced '}'")
+        elif word == "OFFSET":
+            if in_end_site:
+                continue
+            if not stack or len(tokens) != 4:
+                fail("OFFSET needs three numbers inside a joint")
+            joints[stack[-1]].offset = np.array(tokens[1:], dtype=np.float64)
+        elif word == "CHANNELS":
+            if not stack:
+                fail("CHANNELS outside a joint")
+            count = int(tokens[1])
+            names = tokens[2:]
+            if len(names) != count:
+                fail(f"CHANNELS {count} lists {len(names)} channels")
+            bad = [c for c in names if c[1:].lower() not in ("position", "rotation") or c[0].upper() not in "XYZ"]
+            if bad:
+                fail(f"unknown channels {bad}")
+            joints[stack[-1]].channels = names
+            joints[stack[-1]].first_channel = n_channels
+            n_channels += count
+        elif word == "MOTION":
+            break
+        else:
+            fail(f"unexpected {tokens[0]!r}")
+    if not joints:
+        raise RecordingError(f"{path}: no ROOT joint; is this a BVH file?")
+    if stack:
+        raise RecordingError(f"{path}: the hierarchy ends with {len(stack)} unclosed joint(s)")
+    header = {}
+    while k < len(lines) and len(header) < 2:
+        text = lines[k].strip()
+        k += 1
+        if text.lower().startswith("frames:"):
+            header["frames"] = int(text.split(":")[1])
+        elif text.lower().startswith("frame time:"):
+            header["dt"] = float(text.split(":")[1])
+    if len(header) < 2:
+        raise RecordingError(f"{path}: MOTION needs 'Frames:' and 'Frame Time:'")
+    rows = [line.split() for line in lines[k:] if line.strip()]
+    if len(rows) < header["frames"]:
+        raise RecordingError(f"{path}: {header['frames']} frames announced, {len(rows)} found (truncated?)")
+    for i, row in enumerate(rows[: header["frames"]]):
+        if len(row) != n_channels:
+            raise RecordingError(f"{path}: line {k + i + 1} (frame {i}): {len(row)} values, expected {n_channels}")
+    motion = np.array(rows[: header["frames"]], dtype=np.float64)
+    if header["dt"] <= 0:
+        raise RecordingError(f"{path}: Frame Time must be positive, got {header['dt']}")
+    return joints, motion, header["dt"]
+
+
+def _forward_kinematics(joints: list[_Joint], motion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World rotations [T,J,3,3] and positions [T,J,3] in the file's units and axes."""
+    T, J = motion.shape[0], len(joints)
+    R = np.empty((T, J, 3, 3))
+    p = np.empty((T, J, 3))
+    for j, joint in enumerate(joints):  # a reader, not the tracking step: a loop over joints is fine
+        local_R = np.broadcast_to(np.eye(3), (T, 3, 3)).copy()
+        translation = np.broadcast_to(joint.offset, (T, 3)).copy()
+        positions = {}
+        for c, name in enumerate(joint.channels):
+            values = motion[:, joint.first_channel + c]
+            if name[1:].lower() == "rotation":
+                local_R = local_R @ _axis_rotation(name[0].upper(), values)
+            else:
+                positions["XYZ".index(name[0].upper())] = values
+        if positions:
+            for axis, values in positions.items():
+                translation[:, axis] = values
+        if joint.parent < 0:
+            R[:, j], p[:, j] = local_R, translation
+        else:
+            Rp = R[:, joint.parent]
+            R[:, j] = Rp @ local_R
+            p[:, j] = p[:, joint.parent] + (Rp @ translation[..., None])[..., 0]
+    return R, p
+
+
+def read_bvh(path: str | Path, units: str = "auto", scale: float | None = None, up: str = "y",
+             base_link: str | None = None) -> Recording:
+    """Read a BVH file. units: 'auto', 'cm', 'm', 'inch' or 'cmu' (or give `scale`, metres per unit);
+    up: the file's vertical axis ('y' or 'z'); base_link: default the hips/pelvis joint, else the root."""
+    path = Path(path)
+    if not path.is_file():
+        raise RecordingError(f"{path}: no such file")
+    joints, motion, dt = _parse(path)
+    R, p = _forward_kinematics(joints, motion)
+    if up == "y":
+        to_world = Y_UP_TO_Z_UP
+    elif up == "z":
+        to_world = np.eye(3)
+    else:
+        raise RecordingError(f"{path}: up must be 'y' or 'z', got {up!r}")
+    p = p @ to_world.T
+    R = to_world @ R
+    if scale is None:
+        extent = float(np.ptp(p[0, :, 2]))
+        if units == "auto":
+            fits = [u for u, s in UNITS.items() if HEIGHT_RANGE_M[0] <= extent * s <= HEIGHT_RANGE_M[1]]
+            if len(fits) != 1:
+                raise RecordingError(
+                    f"{path}: cannot tell the units: the skeleton is {extent:.3g} units tall in the first frame; "
+                    f"give units= one of {list(UNITS)} or scale= metres per unit")
+            units = fits[0]
+        if units not in UNITS:
+            raise RecordingError(f"{path}: unknown units {units!r}; valid: {list(UNITS)}")
+        scale = UNITS[units]
+    p = p * scale
+    names = tuple(j.name for j in joints)
+    if base_link is None:
+        named = [n for n in names if n.lower() in ("hips", "pelvis", "hip")]
+        base_link = named[0] if named else names[0]
+    elif base_link not in names:
+        raise RecordingError(f"{path}: base link {base_link!r} is not a joint; joints: {list(names)}")
+    # round-off in long products of Euler rotations: back onto SO(3)
+    R = so3.project(torch.from_numpy(R)).numpy()
+    time = np.arange(motion.shape[0]) * dt
+    base = names.index(base_link)
+    velocity = np.gradient(p[:, base], time, axis=0) if len(time) > 1 else np.zeros((len(time), 3))
+    meta = dict(source=str(path), format="bvh", units=units if units != "auto" else None, metres_per_unit=scale,
+                up=up, frame_rate=1.0 / dt,
+                channels={j.name: j.channels for j in joints},
+                note="segment frames are the BVH bones' own: calibrate them to a model with a link map")
+    return Recording(time=time, links=names, orientation=R,
+                     angular_velocity=angular_velocity_from_orientations(R, time),
+                     base_link=base_link, base_position=p[:, base].copy(), base_linear_velocity=velocity, meta=meta)
