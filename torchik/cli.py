@@ -43,9 +43,9 @@ def read_any(path: str):
     """A Recording from any supported file, by its suffix."""
     from pathlib import Path
 
-    from .io import RecordingError, load_recording, read_bvh, read_mvnx
+    from .io import RecordingError, load_recording, read_bvh, read_c3d, read_mvnx
 
-    readers = {".npz": load_recording, ".mvnx": read_mvnx, ".bvh": read_bvh}
+    readers = {".npz": load_recording, ".mvnx": read_mvnx, ".bvh": read_bvh, ".c3d": read_c3d}
     suffix = Path(path).suffix.lower()
     if suffix not in readers:
         raise RecordingError(f"{path}: unsupported format {suffix!r}; supported: {', '.join(readers)}")
@@ -112,12 +112,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     info = sub.add_parser("info", help="print a recording's segments, rate, duration and gaps",
                           epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    info.add_argument("file", help="a recording (.npz) or a source file (.mvnx, .bvh)")
+    info.add_argument("file", help="a recording (.npz) or a source file (.mvnx, .bvh, .c3d)")
     info.set_defaults(run=_info)
 
     convert = sub.add_parser("convert", help="convert a source file to a torchik recording (.npz)",
                              epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    convert.add_argument("input", help="a source file (.mvnx, .bvh) or a recording (.npz)")
+    convert.add_argument("input", help="a source file (.mvnx, .bvh, .c3d) or a recording (.npz)")
     convert.add_argument("output", help="the recording to write (.npz)")
     convert.add_argument("--force", action="store_true", help="overwrite the output if it exists")
     convert.set_defaults(run=_convert)

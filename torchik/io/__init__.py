@@ -1,8 +1,9 @@
-"""Motion data: the recording format and readers for Xsens MVNX and BVH (C3D to follow)."""
+"""Motion data: the recording format and readers for Xsens MVNX, BVH and C3D (Plug-in Gait)."""
 
 from .recording import Recording, RecordingError, angular_velocity_from_orientations, load_recording, save_recording
 from .mvnx import read_mvnx
 from .bvh import read_bvh
+from .c3d import read_c3d
 
-__all__ = ["Recording", "RecordingError", "load_recording", "save_recording", "read_mvnx", "read_bvh",
+__all__ = ["Recording", "RecordingError", "load_recording", "save_recording", "read_mvnx", "read_bvh", "read_c3d",
            "angular_velocity_from_orientations"]

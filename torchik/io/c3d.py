@@ -1,0 +1,109 @@
+"""C3D (Vicon Plug-in Gait outputs) to a Recording, read with ezc3d.
+
+Plug-in Gait writes, for each segment <SEG> (PEL pelvis, TRX thorax, HED head and, with L/R
+prefixes, CL clavicle, HU humerus, RA radius, HN hand, FE femur, TI tibia, FO foot, TO toe), four
+virtual points: origin <SEG>O and the ends of its anterior, lateral and proximal axes <SEG>A,
+<SEG>L, <SEG>P. A - O, L - O, P - O form a right-handed triad, so R = [A-O, L-O, P-O] / norms is
+the segment's rotation in the lab (z up), projected onto SO(3) (the triads are orthogonal to
+about 1e-6 in the files we have seen; the largest deviation is kept in meta).
+
+A point whose residual is negative (the C3D convention for "not measured") or whose coordinates
+are all zero (how some exporters mark occlusions) is missing: the segment's rotation is NaN for
+that frame, never interpolated. Angular and linear velocities are central differences; they are
+NaN next to a gap.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import so3
+from .recording import Recording, RecordingError, angular_velocity_from_orientations
+
+PLUG_IN_GAIT = ("PEL", "TRX", "HED", "LCL", "LHU", "LRA", "LHN", "RCL", "RHU", "RRA", "RHN",
+                "LFE", "LTI", "LFO", "LTO", "RFE", "RTI", "RFO", "RTO")
+UNIT_SCALE = {"mm": 1e-3, "cm": 1e-2, "m": 1.0}
+
+
+def _labels(points_parameters: dict) -> list[str]:
+    """POINT:LABELS, continued in LABELS2, LABELS3, ... when there are more than 255 points."""
+    labels = list(points_parameters["LABELS"]["value"])
+    k = 2
+    while f"LABELS{k}" in points_parameters:
+        labels += list(points_parameters[f"LABELS{k}"]["value"])
+        k += 1
+    return [label.strip() for label in labels]
+
+
+def read_c3d(path: str | Path, base_link: str = "PEL", units: str | None = None) -> Recording:
+    """Read the Plug-in Gait segments of a C3D file. units: 'mm', 'cm' or 'm' when the file's POINT:UNITS
+    is missing or wrong. RecordingError names the file and the problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise RecordingError(f"{path}: no such file")
+    try:
+        import ezc3d
+    except ImportError as exc:
+        raise RecordingError("reading C3D needs the 'ezc3d' package: pip install ezc3d") from exc
+    try:
+        c3d = ezc3d.c3d(str(path), extract_forceplat_data=False)
+    except Exception as exc:  # ezc3d raises plain exceptions for truncated or foreign files
+        raise RecordingError(f"{path}: not a readable C3D file ({type(exc).__name__}: {exc})") from None
+    parameters = c3d["parameters"]["POINT"]
+    labels = _labels(parameters)
+    points = c3d["data"]["points"]  # [4, P, T]
+    if points.shape[1] != len(labels):
+        raise RecordingError(f"{path}: {points.shape[1]} points but {len(labels)} labels")
+    declared = list(parameters.get("UNITS", {}).get("value", []))
+    unit = units or (declared[0].strip().lower() if declared else None)
+    if unit is None:
+        raise RecordingError(f"{path}: the file declares no POINT:UNITS; give units= one of {list(UNIT_SCALE)}")
+    if unit not in UNIT_SCALE:
+        raise RecordingError(f"{path}: unknown units {unit!r}; give units= one of {list(UNIT_SCALE)}")
+    rate = float(np.asarray(parameters["RATE"]["value"]).ravel()[0])
+    index = {label: i for i, label in enumerate(labels)}
+    segments = [s for s in PLUG_IN_GAIT if all(s + axis in index for axis in "OALP")]
+    if base_link not in segments:
+        raise RecordingError(f"{path}: no Plug-in Gait triad for {base_link!r} (points {base_link}O/A/L/P); "
+                             f"segments found: {segments or 'none'}")
+    xyz = points[:3].transpose(2, 1, 0) * UNIT_SCALE[unit]  # [T,P,3] metres
+    residual = c3d["data"]["meta_points"]["residuals"][0].T if "residuals" in c3d["data"]["meta_points"] else None
+    valid = np.isfinite(xyz).all(-1) & (np.abs(xyz).sum(-1) > 0)
+    if residual is not None:
+        valid &= residual >= 0
+    T = xyz.shape[0]
+
+    def corners(segment):
+        ids = [index[segment + axis] for axis in "OALP"]
+        return xyz[:, ids], valid[:, ids].all(-1)
+
+    rotations, present, worst = [], [], 0.0
+    for segment in segments:  # 19 segments at most, in a reader: fine
+        p, ok = corners(segment)
+        axes = p[:, 1:] - p[:, :1]  # [T,3 axes,3]
+        axes = axes / np.linalg.norm(axes, axis=-1, keepdims=True).clip(min=1e-12)
+        R = np.swapaxes(axes, -1, -2)  # columns: anterior, lateral, proximal
+        if ok.any():
+            deviation = np.abs(np.swapaxes(R[ok], -1, -2) @ R[ok] - np.eye(3)).max()
+            worst = max(worst, float(deviation))
+        rotations.append(np.where(ok[:, None, None], R, np.nan))
+        present.append(ok)
+    R = np.stack(rotations, axis=1)  # [T,n,3,3]
+    known = ~np.isnan(R).any(axis=(-1, -2))
+    if known.any():
+        R[known] = so3.project(torch.from_numpy(R[known])).numpy()
+    time = np.arange(T) / rate
+    base_origin, base_ok = xyz[:, index[base_link + "O"]], valid[:, index[base_link + "O"]]
+    base_position = np.where(base_ok[:, None], base_origin, np.nan)
+    velocity = np.gradient(base_position, time, axis=0) if T > 1 else np.zeros((T, 3))
+    missing = {s: int((~ok).sum()) for s, ok in zip(segments, present) if (~ok).any()}
+    meta = dict(source=str(path), format="c3d", frame_rate=rate, units=dict(position=unit, converted_to="m"),
+                first_frame=int(c3d["header"]["points"]["first_frame"]), triad_max_deviation=worst,
+                missing_frames=missing,
+                note="segment frames are Plug-in Gait's (anterior, lateral, proximal): calibrate them with a link map")
+    return Recording(time=time, links=tuple(segments), orientation=R,
+                     angular_velocity=angular_velocity_from_orientations(R, time), base_link=base_link,
+                     base_position=base_position, base_linear_velocity=velocity, meta=meta)
