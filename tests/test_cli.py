@@ -48,3 +48,35 @@ def test_convert_and_info_on_an_mvnx_file(tmp_path):
     assert info.returncode == 0 and "30 frames, 100.00 Hz" in info.stdout and "Pelvis, Head" in info.stdout
     bad = run("info", str(tmp_path / "walk.xyz"))
     assert bad.returncode == 2 and "unsupported format '.xyz'" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_track_a_scenario_end_to_end_with_report_and_trajectory(tmp_path):
+    import json
+
+    import numpy as np
+
+    report, out = tmp_path / "walk.json", tmp_path / "walk.npz"
+    result = run("track", "--scenario", "walking", "--model", "human48", "--duration", "3", "--report", str(report), "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    assert "MNTE after 2 s" in result.stdout
+    data = json.loads(report.read_text())
+    assert data["frames"] == 301 and data["mnte"]["p99"] < 1e-6 and data["qp_fallbacks"] == 0
+    assert data["joint_error_rad"]["max"] < 1e-3
+    trajectory = np.load(out)
+    assert trajectory["joint_positions"].shape == (301, 48) and len(trajectory["joint_names"]) == 48
+    again = run("track", "--scenario", "walking", "--model", "human48", "--duration", "3", "--report", str(report))
+    assert again.returncode == 2 and "exists; add --force" in again.stderr
+
+
+def test_track_a_recording_file_and_refuse_bad_input(tmp_path):
+    from torchik.io import save_recording
+    from torchik.models import TRACKED_LINKS, load_model
+    from torchik.scenarios import scenario
+
+    path = save_recording(scenario("tpose", load_model("icub"), TRACKED_LINKS["icub"], duration=1.0), tmp_path / "t.npz")
+    result = run("track", "--input", str(path), "--model", "icub", "--quiet")
+    assert result.returncode == 0 and result.stdout == ""
+    wrong = run("track", "--input", str(path), "--model", "human66")
+    assert wrong.returncode == 2 and "the recording has no" in wrong.stderr and "Traceback" not in wrong.stderr
+    assert run("track", "--scenario", "dancing").returncode == 2
+    assert run("track", "--model", "robot").returncode == 2

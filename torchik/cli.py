@@ -8,6 +8,9 @@ import sys
 from .errors import TorchikError
 
 EXAMPLES = """examples:
+  torchik track --scenario walking --model human66 --report walk.json
+                                          track the built-in walking scenario and report the errors
+  torchik track --input walk.npz --model human66 --out estimate.npz
   torchik models                          list the models with their DoF, links and limits
   torchik info walk.mvnx                  segments, rate, duration and gaps of a recording
   torchik convert walk.mvnx walk.npz      convert to torchik's recording format
@@ -82,6 +85,54 @@ def _convert(args: argparse.Namespace) -> int:
     return 0
 
 
+def _track(args: argparse.Namespace) -> int:
+    import time
+    from pathlib import Path
+
+    from .errors import InputError
+    from .models import TRACKED_LINKS, load_model
+    from .scenarios import SCENARIOS, scenario
+    from .track import save_trajectory, track_recording, write_report
+
+    outputs = [Path(p) for p in (args.report, args.out) if p]
+    for path in outputs:
+        if path.exists() and not args.force:
+            raise InputError(f"{path} exists; add --force to overwrite it")
+    model = load_model(args.model)
+    links = TRACKED_LINKS[args.model]
+    if args.input:
+        recording = read_any(args.input)
+        source = args.input
+    else:
+        if args.scenario not in SCENARIOS:
+            raise InputError(f"unknown scenario {args.scenario!r}; valid: {', '.join(SCENARIOS)}")
+        recording = scenario(args.scenario, model, links, duration=args.duration, rate=args.rate, seed=args.seed)
+        source = f"scenario {args.scenario} ({args.duration} s at {args.rate} Hz)"
+    start = time.perf_counter()
+    trajectory, report = track_recording(model, recording, links, args.gain, args.gain, args.scheme, args.backend,
+                                         progress=False if args.quiet else None)
+    report.update(source=source, wall_time_s=time.perf_counter() - start)
+    if not args.quiet:
+        m, r, st = report["mnte"], report["angular_velocity_rmse"], report["step_time_ms"]
+        print(f"tracked {source} with {model.name}: {report['frames']} frames in {report['wall_time_s']:.1f} s")
+        if m:
+            print(f"    MNTE after {report['transient_s']:.0f} s: median {m['median']:.2e}, p99 {m['p99']:.2e}")
+            print(f"    angular velocity RMSE: median {r['median']:.2e} rad/s, p99 {r['p99']:.2e} rad/s")
+        if "joint_error_rad" in report:
+            print(f"    joint error against ground truth: max {report['joint_error_rad']['max']:.2e} rad")
+        print(f"    step time: median {st['median']:.2f} ms, p99 {st['p99']:.2f} ms; "
+              f"QP fallbacks {report['qp_fallbacks']}, dropped targets {report['dropped_targets']}")
+    if args.report:
+        write_report(report, args.report)
+        if not args.quiet:
+            print(f"wrote {args.report}")
+    if args.out:
+        save_trajectory(trajectory, model, args.out)
+        if not args.quiet:
+            print(f"wrote {args.out}")
+    return 0
+
+
 def _segment(text: str) -> tuple[str, float]:
     name, _, value = text.partition("=")
     try:
@@ -99,6 +150,24 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
+    track = sub.add_parser("track", help="track a recording or a built-in scenario and report the errors",
+                           epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    source = track.add_mutually_exclusive_group()
+    source.add_argument("--scenario", default="walking", help="built-in scenario: tpose, walking, running (default walking)")
+    source.add_argument("--input", metavar="FILE", help="a recording (.npz) or source file whose segments are the model's links")
+    track.add_argument("--model", default="human66", choices=("human66", "human48", "icub"))
+    track.add_argument("--duration", type=float, default=10.0, help="scenario length in seconds (default 10)")
+    track.add_argument("--rate", type=float, default=100.0, help="scenario rate in Hz (default 100)")
+    track.add_argument("--seed", type=int, default=0)
+    track.add_argument("--gain", type=float, default=20.0, help="K for positions and orientations, 1/s (default 20)")
+    track.add_argument("--scheme", default="midpoint", choices=("midpoint", "paper"))
+    track.add_argument("--backend", default="piqp", choices=("piqp",))
+    track.add_argument("--report", metavar="JSON", help="write the metrics here")
+    track.add_argument("--out", metavar="NPZ", help="write the estimated trajectory here")
+    track.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    track.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    track.set_defaults(run=_track)
+
     models = sub.add_parser("models", help="list the built-in models, or write the human URDFs",
                             epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     models.add_argument("--links", metavar="MODEL", choices=("human66", "human48", "icub"),
