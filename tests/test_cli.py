@@ -80,3 +80,19 @@ def test_track_a_recording_file_and_refuse_bad_input(tmp_path):
     assert wrong.returncode == 2 and "the recording has no" in wrong.stderr and "Traceback" not in wrong.stderr
     assert run("track", "--scenario", "dancing").returncode == 2
     assert run("track", "--model", "robot").returncode == 2
+
+
+def test_track_through_a_map_with_calibration():
+    from pathlib import Path
+
+    shared = Path(__file__).resolve().parents[2] / "shared" / "data" / "c3d"
+    if not (shared / "HC002D02.c3d").is_file():
+        import pytest
+
+        pytest.skip("../shared/data absent")
+    result = run("track", "--input", str(shared / "HC002D25.c3d"), "--map", "plugin_gait_to_human",
+                 "--calibration", str(shared / "HC002D02.c3d"), "--model", "human48")
+    assert result.returncode == 0, result.stderr
+    assert "through map 'plug-in gait to human'" in result.stdout
+    missing = run("track", "--input", str(shared / "HC002D25.c3d"), "--map", "xsens_to_human", "--model", "human48")
+    assert missing.returncode == 2 and "lacks" in missing.stderr

@@ -11,6 +11,7 @@ EXAMPLES = """examples:
   torchik track --scenario walking --model human66 --report walk.json
                                           track the built-in walking scenario and report the errors
   torchik track --input walk.npz --model human66 --out estimate.npz
+  torchik track --input walk.c3d --map plugin_gait_to_human --calibration static.c3d --model human48
   torchik models                          list the models with their DoF, links and limits
   torchik info walk.mvnx                  segments, rate, duration and gaps of a recording
   torchik convert walk.mvnx walk.npz      convert to torchik's recording format
@@ -103,6 +104,17 @@ def _track(args: argparse.Namespace) -> int:
     if args.input:
         recording = read_any(args.input)
         source = args.input
+        if args.map:
+            from .io import apply_map, calibrate, load_map
+
+            link_map = load_map(args.map)
+            if args.calibration:
+                link_map = calibrate(link_map, read_any(args.calibration), model, args.calibration_frame)
+            recording = apply_map(recording, link_map, model, args.calibration_frame)
+            links = recording.links
+            source += f" through map {link_map.name!r}"
+    elif args.map or args.calibration:
+        raise InputError("--map and --calibration apply to --input recordings; the scenarios are in the model's links")
     else:
         if args.scenario not in SCENARIOS:
             raise InputError(f"unknown scenario {args.scenario!r}; valid: {', '.join(SCENARIOS)}")
@@ -155,6 +167,10 @@ def build_parser() -> argparse.ArgumentParser:
     source = track.add_mutually_exclusive_group()
     source.add_argument("--scenario", default="walking", help="built-in scenario: tpose, walking, running (default walking)")
     source.add_argument("--input", metavar="FILE", help="a recording (.npz) or source file whose segments are the model's links")
+    track.add_argument("--map", help="link map from the input's segments to the model's links: a built-in name "
+                       "(xsens_to_human, plugin_gait_to_human, human_to_icub) or a .toml file")
+    track.add_argument("--calibration", metavar="FILE", help="a static trial to calibrate the map's offsets on")
+    track.add_argument("--calibration-frame", type=int, default=0, help="the frame holding the reference pose (default 0)")
     track.add_argument("--model", default="human66", choices=("human66", "human48", "icub"))
     track.add_argument("--duration", type=float, default=10.0, help="scenario length in seconds (default 10)")
     track.add_argument("--rate", type=float, default=100.0, help="scenario rate in Hz (default 100)")

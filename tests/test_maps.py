@@ -1,0 +1,98 @@
+"""io.maps: link maps rename and re-frame a recording's segments; calibration recovers unknown offsets exactly."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from torchik import so3
+from torchik.io import RecordingError, apply_map, calibrate, load_map
+from torchik.io.maps import LinkEntry, LinkMap, reference_configuration
+from torchik.io.recording import Recording
+from torchik.models import TRACKED_LINKS, load_model
+from torchik.scenarios import recording_targets, scenario
+from torchik.tracker import DynamicalIK, State
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def test_the_human_to_icub_offsets_make_icubs_zero_configuration_the_human_t_pose_for_trunk_and_legs():
+    """At the human T-pose every human link frame is the world's; iCub at zero (arms aside) must then match."""
+    icub, link_map = load_model("icub"), load_map("human_to_icub")
+    offset = {e.link: torch.from_numpy(e.offset) for e in link_map.entries}
+    p, _, s = icub.zero_configuration(1)
+    kin = icub(p, offset["root_link"][None], s, link_map.links, jacobian=False)
+    for i, link in enumerate(link_map.links):
+        angle = float(so3.log(kin.rotation[0, i].T @ offset[link]).norm())
+        if "arm" in link or "hand" in link:
+            assert abs(angle - np.pi / 2) < 0.02, link  # iCub's arms at zero are a quarter turn from a T
+        else:
+            assert angle < 1e-5, link  # the published foot offsets write pi as 3.14159
+
+
+def test_a_retargeted_human_walk_is_tracked_by_icub_within_its_limits():
+    human, icub = load_model("human66"), load_model("icub")
+    mapped = apply_map(scenario("walking", human, TRACKED_LINKS["human66"], duration=5.0), load_map("human_to_icub"))
+    targets = recording_targets(mapped, mapped.links)
+    s0 = icub.zero_configuration(1)[2]
+    for name, value in (("r_shoulder_roll", 0.6), ("l_shoulder_roll", 0.6), ("r_elbow", 0.3), ("l_elbow", 0.3)):
+        s0[0, icub.joint_names.index(name)] = value  # a feasible start, near the human's posture
+    start = State(targets.position[0, :, 0].clone(), targets.rotation[0, :, 0].clone(), s0,
+                  torch.zeros(1, 6 + icub.n_dof, dtype=torch.float64))
+    trajectory = DynamicalIK(icub, mapped.links, position_gain=10.0, orientation_gain=10.0, dt=0.01).run(targets, start)
+    s = trajectory.joint_positions[:, 0]
+    assert float(torch.maximum(s - icub.upper, icub.lower - s).max()) <= 1e-6
+    assert float((s @ icub.linear_limits.A.T - icub.linear_limits.b).max()) <= 1e-6
+    # iCub cannot match a human exactly (other segment proportions and joint axes): bounded, not zero
+    assert float(trajectory.diagnostics["mnte"][200:].max()) < 0.02
+
+
+def test_calibration_recovers_unknown_sensor_offsets_exactly():
+    model = load_model("human48")
+    links = TRACKED_LINKS["human48"]
+    walk = scenario("walking", model, links, duration=1.0)
+    # frame 0: the subject in an N-pose, facing 0.7 rad left of x; then walking
+    p0, _, _ = model.zero_configuration(1)
+    yaw = so3.exp(torch.tensor([[0.0, 0.0, 0.7]], dtype=torch.float64))
+    reference = model(p0, yaw, reference_configuration(model, "npose"), links, jacobian=False).rotation[0].numpy()
+    truth = np.concatenate((reference[None], walk.orientation))
+    offsets = so3.random_rotation((len(links),), torch.Generator().manual_seed(0)).numpy()
+    offsets[0] = np.eye(3)  # the pelvis sensor's x axis points forward, which calibration uses for the heading
+    sensors = truth @ np.swapaxes(offsets, -1, -2)  # what misaligned sensors report: R_link D^T
+    time = np.concatenate(([walk.time[0] - 0.01], walk.time))
+    recording = Recording(time=time, links=tuple(f"s_{l}" for l in links), orientation=sensors,
+                          angular_velocity=np.concatenate((np.zeros((1, len(links), 3)), walk.angular_velocity)),
+                          base_link="s_Pelvis", base_position=np.concatenate((walk.base_position[:1], walk.base_position)),
+                          base_linear_velocity=np.concatenate((walk.base_linear_velocity[:1], walk.base_linear_velocity)))
+    link_map = LinkMap("test", "human48", tuple(LinkEntry(l, f"s_{l}", None) for l in links), "Pelvis", "s_Pelvis",
+                       "npose", "x", "<test>")
+    calibrated = calibrate(link_map, recording, model, frame=0)
+    assert calibrated.calibration["frame"] == 0
+    mapped = apply_map(recording, calibrated)
+    assert np.abs(mapped.orientation - truth).max() < 1e-10
+    assert mapped.meta["link_map"]["calibration"]["reference_pose"] == "npose"
+
+
+def test_maps_refuse_what_they_cannot_do():
+    human = load_model("human66")
+    rec = scenario("tpose", human, ["Pelvis", "Head"], duration=0.2)
+    with pytest.raises(RecordingError, match=r"needs segments \[.*'LeftFoot'.*\] that the recording lacks"):
+        apply_map(rec, load_map("human_to_icub"))
+    with pytest.raises(RecordingError, match="built-in maps: human_to_icub, plugin_gait_to_human, xsens_to_human"):
+        load_map("bvh_to_robot")
+    with pytest.raises(RecordingError, match="give the model"):
+        apply_map(rec, load_map("plugin_gait_to_human"))
+
+
+@pytest.mark.skipif(not (SHARED / "c3d" / "HC002D02.c3d").is_file(), reason="../shared/data absent")
+def test_plug_in_gait_calibrated_on_the_static_trial_then_applied_to_a_walk_is_tracked():
+    from torchik.io import read_c3d
+
+    model = load_model("human48")
+    calibrated = calibrate(load_map("plugin_gait_to_human"), read_c3d(SHARED / "c3d" / "HC002D02.c3d"), model, frame=0)
+    walk = apply_map(read_c3d(SHARED / "c3d" / "HC002D25.c3d"), calibrated)
+    assert walk.links[0] == "Pelvis" and len(walk.links) == 19
+    trajectory = DynamicalIK(model, walk.links, dt=0.01).run(recording_targets(walk, walk.links))
+    assert bool(torch.isfinite(trajectory.joint_positions).all())
+    assert float(trajectory.diagnostics["mnte"][100:].median()) < 0.1  # a real subject on a generic model: close, not exact

@@ -1,0 +1,179 @@
+"""Link maps: from a source's segments to a model's links, with constant frame offsets.
+
+A map is a TOML file (see models/maps/). For each model link it names the source segment and the
+constant rotation C between their frames, R_link = R_segment C, given as one of
+
+- `link_in_segment_rpy = [r, p, y]`: C = R(rpy), the link frame in the segment frame;
+- `segment_in_link_rpy = [r, p, y]`: C = R(rpy)^T (how robot models publish "fake" frames);
+- `calibrate = true`: C = R_segment(k)^T R_link(reference pose), from a reference frame k of the
+  recording in which the subject holds the map's `reference_pose` ("tpose": the human models'
+  zero configuration; "npose": arms down), facing the heading of the base segment's
+  `base_forward_axis` (as the IMU placers of Xsens MVN and OpenSense do from a static pose).
+
+Angular velocities are world-frame and unchanged by a constant offset; the base position is the
+base segment's. The mapped recording says in meta["link_map"] which map and which frame it used.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import so3
+from ..kinematics import KinematicModel
+from .recording import Recording, RecordingError
+
+MAPS_DIR = Path(__file__).resolve().parents[2] / "models" / "maps"
+
+
+@dataclass(frozen=True)
+class LinkEntry:
+    link: str
+    segment: str
+    offset: np.ndarray | None  # C [3,3], or None when it is to be calibrated
+
+
+@dataclass(frozen=True)
+class LinkMap:
+    """A parsed map: entries in the model's link order, the base link and segment, calibration settings."""
+
+    name: str
+    model: str
+    entries: tuple[LinkEntry, ...]
+    base_link: str
+    base_segment: str
+    reference_pose: str | None
+    base_forward_axis: str | None
+    source: str
+    calibration: dict | None = None  # where the calibrated offsets came from
+
+    @property
+    def links(self) -> tuple[str, ...]:
+        return tuple(e.link for e in self.entries)
+
+
+def _rpy(values, where: str) -> np.ndarray:
+    if not (isinstance(values, list) and len(values) == 3):
+        raise RecordingError(f"{where}: expected [roll, pitch, yaw] in radians, got {values!r}")
+    return so3.rpy_to_matrix(torch.tensor([float(v) for v in values], dtype=torch.float64)).numpy()
+
+
+def load_map(name_or_path: str | Path) -> LinkMap:
+    """A map by file path or built-in name (a file in models/maps/ without its suffix)."""
+    path = Path(name_or_path)
+    if not path.suffix:
+        path = MAPS_DIR / f"{name_or_path}.toml"
+    if not path.is_file():
+        known = sorted(p.stem for p in MAPS_DIR.glob("*.toml"))
+        raise RecordingError(f"no link map {str(name_or_path)!r}; built-in maps: {', '.join(known)}")
+    try:
+        spec = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise RecordingError(f"{path}: not valid TOML: {exc}") from None
+    for key in ("name", "model", "base", "links"):
+        if key not in spec:
+            raise RecordingError(f"{path}: missing '{key}'")
+    entries = []
+    for link, item in spec["links"].items():
+        where = f"{path}: links.{link}"
+        if "source" not in item:
+            raise RecordingError(f"{where}: missing 'source'")
+        given = [k for k in ("link_in_segment_rpy", "segment_in_link_rpy", "calibrate") if k in item]
+        if len(given) > 1:
+            raise RecordingError(f"{where}: give one of link_in_segment_rpy, segment_in_link_rpy, calibrate")
+        if not given:
+            offset = np.eye(3)
+        elif given[0] == "link_in_segment_rpy":
+            offset = _rpy(item["link_in_segment_rpy"], where)
+        elif given[0] == "segment_in_link_rpy":
+            offset = _rpy(item["segment_in_link_rpy"], where).T
+        else:
+            offset = None
+        entries.append(LinkEntry(link, item["source"], offset))
+    base = spec["base"]
+    if base.get("link") not in spec["links"]:
+        raise RecordingError(f"{path}: base.link {base.get('link')!r} is not one of the mapped links")
+    calibration = spec.get("calibration", {})
+    pose = calibration.get("reference_pose")
+    if any(e.offset is None for e in entries) and pose not in ("tpose", "npose"):
+        raise RecordingError(f"{path}: calibrated links need calibration.reference_pose = 'tpose' or 'npose'")
+    return LinkMap(spec["name"], spec["model"], tuple(entries), base["link"], spec["links"][base["link"]]["source"],
+                   pose, calibration.get("base_forward_axis"), str(path))
+
+
+def reference_configuration(model: KinematicModel, pose: str) -> torch.Tensor:
+    """Joint positions [1,n] of a reference pose: 'tpose' (zero) or 'npose' (human models' arms down)."""
+    s = torch.zeros(1, model.n_dof, dtype=model.dtype, device=model.device)
+    if pose == "npose":
+        for name, angle in (("jRightShoulder_rotx", math.pi / 2), ("jLeftShoulder_rotx", -math.pi / 2)):
+            if name not in model.joint_names:
+                raise RecordingError(f"an N-pose needs {name}; {model.name} has no such joint")
+            s[0, model.joint_names.index(name)] = angle
+    return s
+
+
+def calibrate(link_map: LinkMap, recording: Recording, model: KinematicModel, frame: int = 0) -> LinkMap:
+    """The map with every `calibrate = true` offset computed from `frame` of `recording`, in which the
+    subject holds the map's reference pose (for instance a static trial's frame). Apply the result to
+    that recording or to other trials of the same session."""
+    todo = [i for i, e in enumerate(link_map.entries) if e.offset is None]
+    if not todo:
+        return link_map
+    index = {name: i for i, name in enumerate(recording.links)}
+    missing = sorted({e.segment for e in link_map.entries} - set(index))
+    if missing:
+        raise RecordingError(f"map {link_map.name!r} needs segments {missing} that the recording lacks; "
+                             f"it has {list(recording.links)}")
+    k = int(frame)
+    if not 0 <= k < len(recording.time):
+        raise RecordingError(f"calibration frame {k} is outside the recording's {len(recording.time)} frames")
+    R_source = recording.orientation[k, [index[e.segment] for e in link_map.entries]]  # [L,3,3]
+    if np.isnan(R_source).any():
+        raise RecordingError(f"calibration frame {k} has missing segments; choose a frame where all are seen")
+    p0, R0, _ = model.zero_configuration(1)
+    kin = model(p0, R0, reference_configuration(model, link_map.reference_pose), link_map.links, jacobian=False)
+    heading = np.eye(3)
+    if link_map.base_forward_axis:
+        axis = R_source[link_map.links.index(link_map.base_link)][:, "xyz".index(link_map.base_forward_axis)]
+        heading = so3.rpy_to_matrix(torch.tensor([0.0, 0.0, math.atan2(axis[1], axis[0])], dtype=torch.float64)).numpy()
+    R_reference = heading @ kin.rotation[0].cpu().numpy()  # the model in the pose, facing the subject's way
+    entries = list(link_map.entries)
+    for i in todo:
+        e = entries[i]
+        entries[i] = LinkEntry(e.link, e.segment, R_source[i].T @ R_reference[i])
+    calibrated = dict(frame=k, time_s=float(recording.time[k]), reference_pose=link_map.reference_pose,
+                      recording=recording.meta.get("source"))
+    return LinkMap(link_map.name, link_map.model, tuple(entries), link_map.base_link, link_map.base_segment,
+                   link_map.reference_pose, link_map.base_forward_axis, link_map.source, calibrated)
+
+
+def apply_map(recording: Recording, link_map: LinkMap, model: KinematicModel | None = None,
+              calibration_frame: int | None = None) -> Recording:
+    """The recording in the model's link names and frames. A map with offsets still to calibrate is
+    calibrated on this recording's `calibration_frame` (default 0), which needs `model`."""
+    if any(e.offset is None for e in link_map.entries):
+        if model is None:
+            raise RecordingError(f"map {link_map.name!r} calibrates offsets: give the model (or calibrate() first)")
+        link_map = calibrate(link_map, recording, model, 0 if calibration_frame is None else calibration_frame)
+    index = {name: i for i, name in enumerate(recording.links)}
+    missing = sorted({e.segment for e in link_map.entries} - set(index))
+    if missing:
+        raise RecordingError(f"map {link_map.name!r} needs segments {missing} that the recording lacks; "
+                             f"it has {list(recording.links)}")
+    ids = [index[e.segment] for e in link_map.entries]
+    offsets = np.stack([e.offset for e in link_map.entries])
+    R = recording.orientation[:, ids] @ offsets
+    known = ~np.isnan(R).any(axis=(-1, -2))
+    if known.any():
+        R[known] = so3.project(torch.from_numpy(R[known])).numpy()
+    meta = dict(recording.meta, link_map=dict(name=link_map.name, file=link_map.source, calibration=link_map.calibration,
+                                              segments={e.link: e.segment for e in link_map.entries}))
+    return Recording(time=recording.time, links=link_map.links, orientation=R,
+                     angular_velocity=recording.angular_velocity[:, ids], base_link=link_map.base_link,
+                     base_position=recording.base_position, base_linear_velocity=recording.base_linear_velocity,
+                     meta=meta)
