@@ -79,7 +79,7 @@ def test_maps_refuse_what_they_cannot_do():
     rec = scenario("tpose", human, ["Pelvis", "Head"], duration=0.2)
     with pytest.raises(RecordingError, match=r"needs segments \[.*'LeftFoot'.*\] that the recording lacks"):
         apply_map(rec, load_map("human_to_icub"))
-    with pytest.raises(RecordingError, match="built-in maps: human_to_icub, plugin_gait_to_human, xsens_to_human"):
+    with pytest.raises(RecordingError, match="built-in maps: cmu_to_human, human_to_icub, plugin_gait_to_human, xsens_to_human"):
         load_map("bvh_to_robot")
     with pytest.raises(RecordingError, match="give the model"):
         apply_map(rec, load_map("plugin_gait_to_human"))
@@ -96,3 +96,26 @@ def test_plug_in_gait_calibrated_on_the_static_trial_then_applied_to_a_walk_is_t
     trajectory = DynamicalIK(model, walk.links, dt=0.01).run(recording_targets(walk, walk.links))
     assert bool(torch.isfinite(trajectory.joint_positions).all())
     assert float(trajectory.diagnostics["mnte"][100:].median()) < 0.1  # a real subject on a generic model: close, not exact
+
+
+@pytest.mark.skipif(not (SHARED / "bvh" / "cmu_131_01.bvh").is_file(), reason="../shared/data absent")
+def test_the_cmu_skeleton_calibrated_on_its_rest_pose_is_tracked_by_human66():
+    from torchik.io import read_bvh
+
+    model = load_model("human66")
+    mapped = apply_map(read_bvh(SHARED / "bvh" / "cmu_131_01.bvh"), load_map("cmu_to_human"), model)
+    assert mapped.meta["link_map"]["calibration"]["frame"] == "rest"
+    trajectory = DynamicalIK(model, mapped.links, dt=1 / 120).run(recording_targets(mapped, mapped.links))
+    assert float(trajectory.diagnostics["mnte"][240:].median()) < 1e-4
+
+
+@pytest.mark.skipif(not (SHARED / "bvh" / "bandai_walk_normal_001.bvh").is_file(), reason="../shared/data absent")
+def test_a_rest_pose_that_is_not_a_standing_posture_is_not_offered_for_calibration():
+    from torchik.io import read_bvh
+
+    bandai = read_bvh(SHARED / "bvh" / "bandai_walk_normal_001.bvh")  # every bone along x at rest
+    assert bandai.meta["rest_pose"] is None
+    link_map = LinkMap("bandai", "human66", (LinkEntry("Pelvis", "Hips", None), LinkEntry("Head", "Head", None)),
+                       "Pelvis", "Hips", "npose", None, "<test>", None, "rest")
+    with pytest.raises(RecordingError, match="rest pose is a standing posture"):
+        calibrate(link_map, bandai, load_model("human66"))

@@ -15,6 +15,7 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -166,6 +167,35 @@ def _forward_kinematics(joints: list[_Joint], motion: np.ndarray) -> tuple[np.nd
     return R, p
 
 
+def _rest_pose(joints: list[_Joint], n_channels: int, to_world: np.ndarray, names) -> dict | None:
+    """The skeleton with every rotation channel at zero, as a calibration reference: the joints'
+    world rotations and the subject's up and left directions (hips to head; right-side joints to
+    left-side ones). None when the rest pose is not a standing posture (bones all along one line)."""
+    zero = np.zeros((1, n_channels))
+    for j in joints:  # translations at their offsets
+        for c, name in enumerate(j.channels):
+            if name[1:].lower() == "position":
+                zero[0, j.first_channel + c] = j.offset["XYZ".index(name[0].upper())]
+    R, p = _forward_kinematics(joints, zero)
+    R, p = to_world @ R[0], p[0] @ to_world.T
+    left_side = [i for i, n in enumerate(names) if re.search(r"(^L|Left|_L$|^l_)", n)]
+    right_side = [i for i, n in enumerate(names) if re.search(r"(^R|Right|_R$|^r_)", n)]
+    head = [i for i, n in enumerate(names) if n.lower() in ("head", "neck")]
+    if not (left_side and right_side and head):
+        return None
+    hips = p[0]
+    up = p[head[0]] - hips
+    left = p[left_side].mean(0) - p[right_side].mean(0)
+    left = left - up * (left @ up) / (up @ up)
+    if np.linalg.norm(up) < 1e-9 or np.linalg.norm(left) < 1e-3 * np.linalg.norm(up):
+        return None
+    feet = [i for i, n in enumerate(names) if re.search(r"foot|ankle|toe", n, re.IGNORECASE)]
+    down = p[feet].mean(0) - hips if feet else -up
+    if down @ up > -0.7 * np.linalg.norm(down) * np.linalg.norm(up):
+        return None  # the legs do not hang below the hips: not a standing posture (e.g. bones all along x)
+    return dict(orientation=R.tolist(), up=(up / np.linalg.norm(up)).tolist(), left=(left / np.linalg.norm(left)).tolist())
+
+
 def read_bvh(path: str | Path, units: str = "auto", scale: float | None = None, up: str = "y",
              base_link: str | None = None) -> Recording:
     """Read a BVH file. units: 'auto', 'cm', 'm', 'inch' or 'cmu' (or give `scale`, metres per unit);
@@ -204,12 +234,13 @@ def read_bvh(path: str | Path, units: str = "auto", scale: float | None = None, 
         raise RecordingError(f"{path}: base link {base_link!r} is not a joint; joints: {list(names)}")
     # round-off in long products of Euler rotations: back onto SO(3)
     R = so3.project(torch.from_numpy(R)).numpy()
+    rest = _rest_pose(joints, motion.shape[1], to_world, tuple(j.name for j in joints))
     time = np.arange(motion.shape[0]) * dt
     base = names.index(base_link)
     velocity = np.gradient(p[:, base], time, axis=0) if len(time) > 1 else np.zeros((len(time), 3))
     meta = dict(source=str(path), format="bvh", units=units if units != "auto" else None, metres_per_unit=scale,
                 up=up, frame_rate=1.0 / dt,
-                channels={j.name: j.channels for j in joints},
+                channels={j.name: j.channels for j in joints}, rest_pose=rest,
                 note="segment frames are the BVH bones' own: calibrate them to a model with a link map")
     return Recording(time=time, links=names, orientation=R,
                      angular_velocity=angular_velocity_from_orientations(R, time),

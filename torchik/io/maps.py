@@ -51,6 +51,7 @@ class LinkMap:
     base_forward_axis: str | None
     source: str
     calibration: dict | None = None  # where the calibrated offsets came from
+    calibration_frame: int | str = 0  # the default reference frame: an index, or "rest" (a BVH's rest pose)
 
     @property
     def links(self) -> tuple[str, ...]:
@@ -103,7 +104,7 @@ def load_map(name_or_path: str | Path) -> LinkMap:
     if any(e.offset is None for e in entries) and pose not in ("tpose", "npose"):
         raise RecordingError(f"{path}: calibrated links need calibration.reference_pose = 'tpose' or 'npose'")
     return LinkMap(spec["name"], spec["model"], tuple(entries), base["link"], spec["links"][base["link"]]["source"],
-                   pose, calibration.get("base_forward_axis"), str(path))
+                   pose, calibration.get("base_forward_axis"), str(path), None, calibration.get("frame", 0))
 
 
 def reference_configuration(model: KinematicModel, pose: str) -> torch.Tensor:
@@ -117,10 +118,11 @@ def reference_configuration(model: KinematicModel, pose: str) -> torch.Tensor:
     return s
 
 
-def calibrate(link_map: LinkMap, recording: Recording, model: KinematicModel, frame: int = 0) -> LinkMap:
+def calibrate(link_map: LinkMap, recording: Recording, model: KinematicModel, frame: int | str | None = None) -> LinkMap:
     """The map with every `calibrate = true` offset computed from `frame` of `recording`, in which the
-    subject holds the map's reference pose (for instance a static trial's frame). Apply the result to
-    that recording or to other trials of the same session."""
+    subject holds the map's reference pose (for instance a static trial's frame), or from the BVH
+    skeleton's rest pose (frame "rest"). Default: the map's calibration.frame, else 0. Apply the
+    result to that recording or to other trials of the same session."""
     todo = [i for i, e in enumerate(link_map.entries) if e.offset is None]
     if not todo:
         return link_map
@@ -129,16 +131,29 @@ def calibrate(link_map: LinkMap, recording: Recording, model: KinematicModel, fr
     if missing:
         raise RecordingError(f"map {link_map.name!r} needs segments {missing} that the recording lacks; "
                              f"it has {list(recording.links)}")
-    k = int(frame)
-    if not 0 <= k < len(recording.time):
-        raise RecordingError(f"calibration frame {k} is outside the recording's {len(recording.time)} frames")
-    R_source = recording.orientation[k, [index[e.segment] for e in link_map.entries]]  # [L,3,3]
-    if np.isnan(R_source).any():
-        raise RecordingError(f"calibration frame {k} has missing segments; choose a frame where all are seen")
+    frame = link_map.calibration_frame if frame is None else frame
+    ids = [index[e.segment] for e in link_map.entries]
     p0, R0, _ = model.zero_configuration(1)
     kin = model(p0, R0, reference_configuration(model, link_map.reference_pose), link_map.links, jacobian=False)
     heading = np.eye(3)
-    if link_map.base_forward_axis:
+    if frame == "rest":
+        rest = recording.meta.get("rest_pose")
+        if not rest:
+            raise RecordingError("calibration on the rest pose needs a BVH whose rest pose is a standing posture; "
+                                 "this recording has none: calibrate on a frame index instead")
+        R_source = np.asarray(rest["orientation"])[ids]
+        up, left = np.asarray(rest["up"]), np.asarray(rest["left"])
+        heading = np.stack((np.cross(left, up), left, up), axis=1)  # columns: forward, left, up
+        k, time_s = "rest", None
+    else:
+        k = int(frame)
+        if not 0 <= k < len(recording.time):
+            raise RecordingError(f"calibration frame {k} is outside the recording's {len(recording.time)} frames")
+        R_source = recording.orientation[k, ids]  # [L,3,3]
+        time_s = float(recording.time[k])
+        if np.isnan(R_source).any():
+            raise RecordingError(f"calibration frame {k} has missing segments; choose a frame where all are seen")
+    if frame != "rest" and link_map.base_forward_axis:
         axis = R_source[link_map.links.index(link_map.base_link)][:, "xyz".index(link_map.base_forward_axis)]
         heading = so3.rpy_to_matrix(torch.tensor([0.0, 0.0, math.atan2(axis[1], axis[0])], dtype=torch.float64)).numpy()
     R_reference = heading @ kin.rotation[0].cpu().numpy()  # the model in the pose, facing the subject's way
@@ -146,10 +161,11 @@ def calibrate(link_map: LinkMap, recording: Recording, model: KinematicModel, fr
     for i in todo:
         e = entries[i]
         entries[i] = LinkEntry(e.link, e.segment, R_source[i].T @ R_reference[i])
-    calibrated = dict(frame=k, time_s=float(recording.time[k]), reference_pose=link_map.reference_pose,
+    calibrated = dict(frame=k, time_s=time_s, reference_pose=link_map.reference_pose,
                       recording=recording.meta.get("source"))
     return LinkMap(link_map.name, link_map.model, tuple(entries), link_map.base_link, link_map.base_segment,
-                   link_map.reference_pose, link_map.base_forward_axis, link_map.source, calibrated)
+                   link_map.reference_pose, link_map.base_forward_axis, link_map.source, calibrated,
+                   link_map.calibration_frame)
 
 
 def apply_map(recording: Recording, link_map: LinkMap, model: KinematicModel | None = None,
@@ -159,7 +175,7 @@ def apply_map(recording: Recording, link_map: LinkMap, model: KinematicModel | N
     if any(e.offset is None for e in link_map.entries):
         if model is None:
             raise RecordingError(f"map {link_map.name!r} calibrates offsets: give the model (or calibrate() first)")
-        link_map = calibrate(link_map, recording, model, 0 if calibration_frame is None else calibration_frame)
+        link_map = calibrate(link_map, recording, model, calibration_frame)
     index = {name: i for i, name in enumerate(recording.links)}
     missing = sorted({e.segment for e in link_map.entries} - set(index))
     if missing:
