@@ -79,7 +79,7 @@ def test_maps_refuse_what_they_cannot_do():
     rec = scenario("tpose", human, ["Pelvis", "Head"], duration=0.2)
     with pytest.raises(RecordingError, match=r"needs segments \[.*'LeftFoot'.*\] that the recording lacks"):
         apply_map(rec, load_map("human_to_icub"))
-    with pytest.raises(RecordingError, match="built-in maps: cmu_to_human, human_to_icub, plugin_gait_to_human, xsens_to_human"):
+    with pytest.raises(RecordingError, match="built-in maps: .*human_to_icub.*xsens_to_human"):
         load_map("bvh_to_robot")
     with pytest.raises(RecordingError, match="give the model"):
         apply_map(rec, load_map("plugin_gait_to_human"))
@@ -119,3 +119,16 @@ def test_a_rest_pose_that_is_not_a_standing_posture_is_not_offered_for_calibrati
                        "Pelvis", "Hips", "npose", None, "<test>", None, "rest")
     with pytest.raises(RecordingError, match="rest pose is a standing posture"):
         calibrate(link_map, bandai, load_model("human66"))
+
+
+@pytest.mark.skipif(not (SHARED / "bvh" / "bandai_walk_normal_002.bvh").is_file(), reason="../shared/data absent")
+def test_the_bandai_skeleton_calibrated_on_a_standing_frame_is_tracked_at_its_30_hz():
+    from torchik.io import read_bvh
+
+    model = load_model("human66")
+    calibrated = calibrate(load_map("bandai_to_human"), read_bvh(SHARED / "bvh" / "bandai_walk_normal_001.bvh"), model, 0)
+    walk = apply_map(read_bvh(SHARED / "bvh" / "bandai_walk_normal_002.bvh"), calibrated)
+    trajectory = DynamicalIK(model, walk.links, position_gain=10.0, orientation_gain=10.0, dt=1 / 30).run(
+        recording_targets(walk, walk.links))
+    assert bool(torch.isfinite(trajectory.joint_positions).all()) and bool(trajectory.diagnostics["solved"].all())
+    assert float(trajectory.diagnostics["mnte"][30:].median()) < 1e-3

@@ -376,9 +376,24 @@ class DynamicalIK:
             count = count + ((problem.G @ x.unsqueeze(-1)).squeeze(-1) >= problem.h - tolerance).sum(-1)
         return count
 
+    def initial_state(self, targets: Targets) -> State:
+        """The zero joint configuration at rest, with the base where the first targets put it: at the
+        base link's position target and, when the base link has an orientation target, turned as it."""
+        B = targets.rotation.shape[0] if targets.rotation.numel() else targets.position.shape[0]
+        p, R, s = self.model.zero_configuration(B)
+        base = self.model.base_link
+        if base in self.position_links:
+            found = targets.position[:, self.position_links.index(base)]
+            p = torch.where(torch.isfinite(found).all(-1, keepdim=True), found, p)
+        if base in self.orientation_links:
+            found = targets.rotation[:, self.orientation_links.index(base)]
+            ok = torch.isfinite(found).flatten(-2).all(-1)[:, None, None]
+            R = orthonormalize(torch.where(ok, found, R))
+        return State(p.clone(), R.clone(), s, torch.zeros(B, 6 + self.model.n_dof, dtype=p.dtype, device=p.device))
+
     # ------------------------------------------------------------------ whole sequences
     def run(self, sequence: TargetSequence, initial: State | None = None, progress: bool | None = None) -> Trajectory:
-        """Track a whole sequence from `initial` (default: zero configuration). Sample k of the result
+        """Track a whole sequence from `initial` (default: `initial_state` of the first targets). Sample k of the result
         is the state after the step towards targets k; the first step uses the nominal dt, later
         ones the timestamps' differences. A progress bar shows on runs longer than a few seconds."""
         T = len(sequence)
@@ -388,7 +403,7 @@ class DynamicalIK:
         if T > 1 and not bool((time_[1:] > time_[:-1]).all()):
             raise InputError("sequence.time must be strictly increasing")
         B = sequence.rotation.shape[1] if sequence.rotation.numel() else sequence.position.shape[1]
-        self.reset(initial, batch=B)
+        self.reset(initial if initial is not None else self.initial_state(sequence[0]), batch=B)
         steps = range(T)
         if progress is None:
             progress = T * B > 20000
