@@ -101,3 +101,18 @@ def test_the_real_bvh_files_convert(name):
     assert 0.6 < np.median(rec.base_position[:, 2]) < 1.1  # the hips about a metre above the floor
     speed = np.median(np.linalg.norm(rec.base_linear_velocity[:, :2], axis=-1))
     assert (1.0 < speed < 1.3) if "walk" in name else (3.0 < speed < 4.2) if "run" in name else speed < 1.5
+
+
+def test_values_that_are_not_numbers_are_errors_naming_the_place(tmp_path):
+    path = tmp_path / "bad.bvh"
+    path.write_text(bvh_text().replace("OFFSET 0 0 0", "OFFSET 0 x 0", 1))
+    with pytest.raises(RecordingError, match=r"bad.bvh: line 4: OFFSET values must be numbers"):
+        read_bvh(path)
+    lines = bvh_text().splitlines()
+    lines[-3] = lines[-3].replace("0.0000000000", "nope", 1)
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(RecordingError, match="frame 37: values that are not numbers"):
+        read_bvh(path)
+    path.write_text(bvh_text().replace("Frames: 40", "Frames: 0"))
+    with pytest.raises(RecordingError, match="announces 0 frames"):
+        read_bvh(path)

@@ -45,3 +45,10 @@ def test_the_base_is_free_unless_bounded():
     lb, ub = velocity_bounds(s, -lim, lim, LimitSettings(base_linear=2.0, base_angular=3.0),
                              torch.full((1, 1), 0.01, dtype=torch.float64))
     assert ub[0, :6].tolist() == [2.0] * 3 + [3.0] * 3 and lb[0, :6].tolist() == [-2.0] * 3 + [-3.0] * 3
+
+
+def test_far_outside_a_narrow_range_the_bounds_still_admit_a_velocity():
+    lower, upper = torch.tensor([0.0], dtype=torch.float64), torch.tensor([0.01], dtype=torch.float64)
+    s = torch.tensor([[0.06]], dtype=torch.float64)
+    lb, ub = joint_velocity_bounds(s, lower, upper, LimitSettings(), torch.full((1, 1), 0.01, dtype=torch.float64))
+    assert bool((lb <= ub).all()) and float(ub[0, 0]) < 0  # heading back towards the range

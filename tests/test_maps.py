@@ -81,8 +81,14 @@ def test_maps_refuse_what_they_cannot_do():
         apply_map(rec, load_map("human_to_icub"))
     with pytest.raises(RecordingError, match="built-in maps: .*human_to_icub.*xsens_to_human"):
         load_map("bvh_to_robot")
-    with pytest.raises(RecordingError, match="give the model"):
+    with pytest.raises(RecordingError, match="needs segments .* that the recording lacks"):
         apply_map(rec, load_map("plugin_gait_to_human"))
+    full = scenario("tpose", human, TRACKED_LINKS["human66"], duration=0.2)
+    head_based = Recording(time=full.time, links=full.links, orientation=full.orientation,
+                           angular_velocity=full.angular_velocity, base_link="Head", base_position=full.base_position,
+                           base_linear_velocity=full.base_linear_velocity)
+    with pytest.raises(RecordingError, match="takes the base position from segment 'Pelvis'; the recording's base is 'Head'"):
+        apply_map(head_based, load_map("xsens_to_human"))
 
 
 @pytest.mark.skipif(not (SHARED / "c3d" / "HC002D02.c3d").is_file(), reason="../shared/data absent")

@@ -253,3 +253,19 @@ def test_bad_configuration_is_refused_with_the_valid_choices():
         DynamicalIK(model, ["Pelvis"], scheme="rk4")
     with pytest.raises(InputError, match="reset"):
         DynamicalIK(model, ["Pelvis"]).step(None)
+
+
+def test_history_is_not_aliased_to_the_callers_buffers():
+    """A caller that refills one target buffer in place every step gets the same result as fresh tensors."""
+    model, links = load_model("human48"), TRACKED_LINKS["human48"]
+    motion = periodic_motion(model, 0.5, 100)
+    sequence = targets_from_motion(model, motion, links)
+    fresh = DynamicalIK(model, links, dt=0.01).run(sequence, initial=motion.state(0))
+    tracker = DynamicalIK(model, links, dt=0.01)
+    tracker.reset(motion.state(0))
+    buffer = Targets(*(t.clone() for t in vars(sequence[0]).values()))
+    for k in range(len(sequence)):
+        for name, value in vars(sequence[k]).items():
+            getattr(buffer, name).copy_(value)
+        state, _ = tracker.step(buffer, None if k == 0 else sequence.time[k] - sequence.time[k - 1])
+    assert torch.equal(state.joint_positions, fresh.joint_positions[-1])

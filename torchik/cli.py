@@ -145,6 +145,15 @@ def _track(args: argparse.Namespace) -> int:
     return 0
 
 
+def _frame(text: str) -> int | str:
+    if text == "rest":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a frame index or 'rest', got {text!r}") from None
+
+
 def _segment(text: str) -> tuple[str, float]:
     name, _, value = text.partition("=")
     try:
@@ -170,7 +179,9 @@ def build_parser() -> argparse.ArgumentParser:
     track.add_argument("--map", help="link map from the input's segments to the model's links: a built-in name "
                        "(xsens_to_human, plugin_gait_to_human, human_to_icub) or a .toml file")
     track.add_argument("--calibration", metavar="FILE", help="a static trial to calibrate the map's offsets on")
-    track.add_argument("--calibration-frame", type=int, default=0, help="the frame holding the reference pose (default 0)")
+    track.add_argument("--calibration-frame", type=_frame, default=None,
+                       help="the frame holding the reference pose: an index, or 'rest' for a BVH rest pose "
+                            "(default: the map's own choice, else 0)")
     track.add_argument("--model", default="human66", choices=("human66", "human48", "icub"))
     track.add_argument("--duration", type=float, default=10.0, help="scenario length in seconds (default 10)")
     track.add_argument("--rate", type=float, default=100.0, help="scenario rate in Hz (default 100)")

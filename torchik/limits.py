@@ -39,7 +39,7 @@ def joint_velocity_bounds(s: torch.Tensor, lower: torch.Tensor, upper: torch.Ten
     """Bounds on s_dot from joint limits. s: [B,n]; lower, upper: [n]; dt: [B,1] -> lb, ub [B,n]."""
     ub = _bound(upper - s, settings.max_rate, settings.gain, dt)
     lb = -_bound(s - lower, settings.max_rate, settings.gain, dt)
-    return lb, ub
+    return torch.minimum(lb, ub), ub  # past one limit by more than the range, the way back wins
 
 
 def linear_limit_bounds(s: torch.Tensor, A: torch.Tensor, b: torch.Tensor, settings: LimitSettings,
@@ -61,8 +61,9 @@ def velocity_bounds(s: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, s
     """
     gaps = torch.stack((upper - s, s - lower))  # [2,B,n]: towards the upper, towards the lower limit
     bounds = _bound(gaps, settings.max_rate, settings.gain, dt)
+    lb_s, ub_s = torch.minimum(-bounds[1], bounds[0]), bounds[0]  # past one limit by more than the range, the way back wins
     base_lb, base_ub = base if base is not None else base_velocity_bounds(s.shape[0], settings, s.dtype, s.device)
-    return torch.cat((base_lb, -bounds[1]), dim=1), torch.cat((base_ub, bounds[0]), dim=1)
+    return torch.cat((base_lb, lb_s), dim=1), torch.cat((base_ub, ub_s), dim=1)
 
 
 def base_velocity_bounds(batch: int, settings: LimitSettings, dtype=torch.float64, device="cpu") -> tuple[torch.Tensor, torch.Tensor]:

@@ -80,7 +80,7 @@ def _joint_patterns(model: KinematicModel, gait: Gait, rng: np.random.Generator)
         if re.search(r"Left|^l_", name):
             phase[j] += math.pi
     # keep the motion inside finite limits (the clinical ranges of Human48, iCub's)
-    lower, upper = model.lower.cpu().numpy(), model.upper.cpu().numpy()
+    lower, upper = model.lower.cpu().double().numpy(), model.upper.cpu().double().numpy()
     finite = (upper - lower) < 19.9
     centre = np.where(finite, np.clip(offset, lower + 0.05, upper - 0.05), offset)
     room = np.where(finite, np.minimum(centre - lower, upper - centre) - 0.02, np.inf)
@@ -91,8 +91,8 @@ def _joint_patterns(model: KinematicModel, gait: Gait, rng: np.random.Generator)
 def _within_linear_limits(model: KinematicModel, s: torch.Tensor, margin: float = 1e-3) -> bool:
     if model.linear_limits is None:
         return True
-    A, b = model.linear_limits.A.cpu(), model.linear_limits.b.cpu()
-    return bool((s @ A.T <= b - margin).all())
+    A, b = model.linear_limits.A.cpu().double(), model.linear_limits.b.cpu().double()
+    return bool((s.double() @ A.T <= b - margin).all())
 
 
 def scenario_motion(name: str, model: KinematicModel, duration: float = 10.0, rate: float = 100.0,

@@ -36,9 +36,6 @@ class Targets:
     def to(self, dtype=None, device=None) -> "Targets":
         return Targets(*(t.to(dtype=dtype, device=device) for t in vars(self).values()))
 
-    def select(self, rows: torch.Tensor | slice) -> "Targets":
-        """The targets of some batch rows."""
-        return Targets(*(t[rows] for t in vars(self).values()))
 
 
 @dataclass(frozen=True)
@@ -98,6 +95,7 @@ def clean_targets(targets: Targets, project_tolerance: float = 1e-2, orthonormal
         angular_velocity = torch.where(o_ok[..., None], angular_velocity, 0.0)
         all_valid = bool(p_ok.all()) and bool(o_ok.all())
     eye = torch.eye(3, dtype=rotation.dtype, device=rotation.device)
+    orthonormal_tolerance = max(orthonormal_tolerance, 100 * torch.finfo(rotation.dtype).eps)  # float32 rounding
     deviation = rotation.transpose(-1, -2) @ rotation - eye
     projected = torch.zeros(B, dtype=torch.long, device=position.device)
     if n_o and float(deviation.abs().max()) > orthonormal_tolerance / 3:

@@ -66,7 +66,7 @@ def track_recording(model: KinematicModel, recording: Recording, links, position
         active_constraints_mean=float(d["active_constraints"].double().mean()),
     )
     if recording.joint_positions is not None and recording.joint_names == model.joint_names:
-        truth = torch.from_numpy(recording.joint_positions)
+        truth = torch.from_numpy(recording.joint_positions).to(trajectory.joint_positions)
         err = (trajectory.joint_positions[:, 0] - truth).abs()
         keep = time >= time[0] + transient
         err = err[keep] if bool(keep.any()) else err
@@ -79,13 +79,14 @@ def save_trajectory(trajectory: Trajectory, model: KinematicModel, path: str | P
     """The estimated trajectory of subject 0 as .npz: time [T], joint_names, joint_positions [T,n],
     base_position [T,3], base_rotation [T,3,3], velocity [T,6+n], mnte [T], rmse [T]."""
     path = Path(path)
-    arrays = dict(time=trajectory.time.numpy(), joint_names=np.array(model.joint_names, dtype=str),
-                  joint_positions=trajectory.joint_positions[:, 0].numpy(),
-                  base_position=trajectory.base_position[:, 0].numpy(), base_rotation=trajectory.base_rotation[:, 0].numpy(),
-                  velocity=trajectory.velocity[:, 0].numpy())
+    host = lambda t: t.detach().cpu().numpy()  # noqa: E731
+    arrays = dict(time=host(trajectory.time), joint_names=np.array(model.joint_names, dtype=str),
+                  joint_positions=host(trajectory.joint_positions[:, 0]),
+                  base_position=host(trajectory.base_position[:, 0]), base_rotation=host(trajectory.base_rotation[:, 0]),
+                  velocity=host(trajectory.velocity[:, 0]))
     for name in ("mnte", "rmse"):
         if name in trajectory.diagnostics:
-            arrays[name] = trajectory.diagnostics[name].numpy()
+            arrays[name] = host(trajectory.diagnostics[name])
     with open(path, "wb") as f:
         np.savez(f, **arrays)
     return path

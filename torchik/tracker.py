@@ -14,8 +14,8 @@ Each step, for a batch of B subjects:
 Two discretisations of the continuous law J nu = v + K r:
 
 - 'midpoint' (default, second order): the residual compares the state q_{k-1} with the targets
-  at the same instant t_{k-1}; the feed-forward velocity is the mean of v(t_{k-1}) and v(t_k),
-  the average velocity over the step; the Jacobian is taken at the middle of the step,
+  at the same instant t_{k-1}; the feed-forward velocity is the target's average velocity over
+  the step (the integral of the quadratic through the last three samples, or the mean of two); the Jacobian is taken at the middle of the step,
   predicted from the previous velocities, which accounts for the curvature of the kinematics
   (with J(q_{k-1}) a chain of joints would leave an O(dt^2) error every step, a first-order
   scheme). Then q_k = q_{k-1} + dt nu_k. The error is O(dt^2 / K); stability: K dt < 2. It costs
@@ -23,7 +23,8 @@ Two discretisations of the continuous law J nu = v + K r:
 - 'paper' (the literal discrete law of the paper): J(q_{k-1}) nu_k = v(t_k) + K r(q_{k-1}, x(t_k)),
   q_k = q_{k-1} + dt nu_k. It lags by about dt v (first order). Stability: K dt < 2.
 
-Diagnostics describe the state at the start of the step against the targets at that instant.
+Diagnostics: mnte compares the state at the start of the step with the targets at that instant;
+residual_norm is the residual the step used (against x(t_k) in the paper's scheme).
 """
 
 from __future__ import annotations
@@ -72,8 +73,8 @@ class StepDiagnostics:
     active_constraints: [B] bounds and linear limits active in the QP's solution;
     solved: [B] False where the QP failed and the clipped fallback was used;
     dropped: [B] non-finite targets dropped; projected: [B] target rotations projected onto SO(3);
-    step_time: seconds for the whole batch, of which kinematics_time (both kinematics calls) and
-    qp_time (building and solving the QP's bounds and solving it).
+    step_time: seconds for the whole batch, of which kinematics_time (the kinematics calls) and
+    qp_time (the QP backend's solve).
     """
 
     mnte: torch.Tensor
@@ -164,8 +165,14 @@ class DynamicalIK:
         self._position_index = torch.tensor([index[n] for n in self.position_links], **long)
         self._orientation_index = torch.tensor([index[n] for n in self.orientation_links], **long)
         kw = dict(dtype=model.dtype, device=model.device)
-        self.position_gain = torch.as_tensor(position_gain, **kw).expand(len(self.position_links)).clone()
-        self.orientation_gain = torch.as_tensor(orientation_gain, **kw).expand(len(self.orientation_links)).clone()
+        gains = []
+        for name, gain, n in (("position_gain", position_gain, len(self.position_links)),
+                              ("orientation_gain", orientation_gain, len(self.orientation_links))):
+            gain = torch.as_tensor(gain, **kw)
+            if gain.dim() > 1 or (gain.dim() == 1 and gain.shape[0] != n):
+                raise InputError(f"{name}: give a scalar or one gain per target ({n}), got shape {list(gain.shape)}")
+            gains.append(gain.expand(n).clone())
+        self.position_gain, self.orientation_gain = gains
         self.dt, self.scheme, self.rotation_integrator = float(dt), scheme, rotation_integrator
         self.baumgarte_gain, self.damping, self.limits = float(baumgarte_gain), float(damping), limits
         self.backend = make_backend(backend)
@@ -322,7 +329,8 @@ class DynamicalIK:
             previous = self._substitute(self._previous, self._previous_valid, x)
             before = None if self._before is None else self._substitute(self._before, self._before_valid, x)
         self._before, self._before_valid = self._previous, self._previous_valid
-        self._previous, self._previous_valid = x, valid
+        # copies: a caller may refill the same target tensors in place every step
+        self._previous, self._previous_valid = Targets(*(v.clone() for v in vars(x).values())), valid
         return previous, before
 
     @staticmethod

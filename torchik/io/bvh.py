@@ -49,6 +49,14 @@ def _axis_rotation(axis: str, degrees: np.ndarray) -> np.ndarray:
     return np.stack(rows, -1).reshape(a.shape + (3, 3))
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+        return True
+    except ValueError:
+        return False
+
+
 def _parse(path: Path) -> tuple[list[_Joint], np.ndarray, float]:
     lines = path.read_text(errors="replace").splitlines()
     joints: list[_Joint] = []
@@ -58,8 +66,8 @@ def _parse(path: Path) -> tuple[list[_Joint], np.ndarray, float]:
     pending: _Joint | None = None
     in_end_site = 0
 
-    def fail(message: str):
-        raise RecordingError(f"{path}: line {k + 1}: {message}")
+    def fail(message: str):  # k has already moved past the line at fault
+        raise RecordingError(f"{path}: line {k}: {message}")
 
     while k < len(lines):
         tokens = lines[k].split()
@@ -96,10 +104,15 @@ def _parse(path: Path) -> tuple[list[_Joint], np.ndarray, float]:
                 continue
             if not stack or len(tokens) != 4:
                 fail("OFFSET needs three numbers inside a joint")
-            joints[stack[-1]].offset = np.array(tokens[1:], dtype=np.float64)
+            try:
+                joints[stack[-1]].offset = np.array(tokens[1:], dtype=np.float64)
+            except ValueError:
+                fail(f"OFFSET values must be numbers, got {tokens[1:]}")
         elif word == "CHANNELS":
             if not stack:
                 fail("CHANNELS outside a joint")
+            if len(tokens) < 2 or not tokens[1].isdigit():
+                fail("CHANNELS needs a count, then the channel names")
             count = int(tokens[1])
             names = tokens[2:]
             if len(names) != count:
@@ -122,19 +135,28 @@ def _parse(path: Path) -> tuple[list[_Joint], np.ndarray, float]:
     while k < len(lines) and len(header) < 2:
         text = lines[k].strip()
         k += 1
-        if text.lower().startswith("frames:"):
-            header["frames"] = int(text.split(":")[1])
-        elif text.lower().startswith("frame time:"):
-            header["dt"] = float(text.split(":")[1])
+        try:
+            if text.lower().startswith("frames:"):
+                header["frames"] = int(text.split(":")[1])
+            elif text.lower().startswith("frame time:"):
+                header["dt"] = float(text.split(":")[1])
+        except ValueError:
+            raise RecordingError(f"{path}: line {k}: expected a number in {text!r}") from None
     if len(header) < 2:
         raise RecordingError(f"{path}: MOTION needs 'Frames:' and 'Frame Time:'")
+    if header["frames"] < 1:
+        raise RecordingError(f"{path}: the file announces {header['frames']} frames")
     rows = [line.split() for line in lines[k:] if line.strip()]
     if len(rows) < header["frames"]:
         raise RecordingError(f"{path}: {header['frames']} frames announced, {len(rows)} found (truncated?)")
     for i, row in enumerate(rows[: header["frames"]]):
         if len(row) != n_channels:
             raise RecordingError(f"{path}: line {k + i + 1} (frame {i}): {len(row)} values, expected {n_channels}")
-    motion = np.array(rows[: header["frames"]], dtype=np.float64)
+    try:
+        motion = np.array(rows[: header["frames"]], dtype=np.float64)
+    except ValueError:
+        bad = next(i for i, row in enumerate(rows) if not all(_is_number(v) for v in row))
+        raise RecordingError(f"{path}: frame {bad}: values that are not numbers: {rows[bad][:6]}") from None
     if header["dt"] <= 0:
         raise RecordingError(f"{path}: Frame Time must be positive, got {header['dt']}")
     return joints, motion, header["dt"]

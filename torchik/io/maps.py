@@ -101,6 +101,8 @@ def load_map(name_or_path: str | Path) -> LinkMap:
         raise RecordingError(f"{path}: base.link {base.get('link')!r} is not one of the mapped links")
     calibration = spec.get("calibration", {})
     pose = calibration.get("reference_pose")
+    if calibration.get("base_forward_axis") not in (None, "x", "y", "z"):
+        raise RecordingError(f"{path}: calibration.base_forward_axis must be 'x', 'y' or 'z'")
     if any(e.offset is None for e in entries) and pose not in ("tpose", "npose"):
         raise RecordingError(f"{path}: calibrated links need calibration.reference_pose = 'tpose' or 'npose'")
     return LinkMap(spec["name"], spec["model"], tuple(entries), base["link"], spec["links"][base["link"]]["source"],
@@ -169,18 +171,22 @@ def calibrate(link_map: LinkMap, recording: Recording, model: KinematicModel, fr
 
 
 def apply_map(recording: Recording, link_map: LinkMap, model: KinematicModel | None = None,
-              calibration_frame: int | None = None) -> Recording:
+              calibration_frame: int | str | None = None) -> Recording:
     """The recording in the model's link names and frames. A map with offsets still to calibrate is
-    calibrated on this recording's `calibration_frame` (default 0), which needs `model`."""
-    if any(e.offset is None for e in link_map.entries):
-        if model is None:
-            raise RecordingError(f"map {link_map.name!r} calibrates offsets: give the model (or calibrate() first)")
-        link_map = calibrate(link_map, recording, model, calibration_frame)
+    calibrated on this recording's `calibration_frame` (an index or "rest"; default: the map's
+    calibration.frame, else 0), which needs `model`."""
     index = {name: i for i, name in enumerate(recording.links)}
     missing = sorted({e.segment for e in link_map.entries} - set(index))
     if missing:
         raise RecordingError(f"map {link_map.name!r} needs segments {missing} that the recording lacks; "
                              f"it has {list(recording.links)}")
+    if recording.base_link != link_map.base_segment:
+        raise RecordingError(f"map {link_map.name!r} takes the base position from segment {link_map.base_segment!r}; "
+                             f"the recording's base is {recording.base_link!r} (read it with base_link={link_map.base_segment!r})")
+    if any(e.offset is None for e in link_map.entries):
+        if model is None:
+            raise RecordingError(f"map {link_map.name!r} calibrates offsets: give the model (or calibrate() first)")
+        link_map = calibrate(link_map, recording, model, calibration_frame)
     ids = [index[e.segment] for e in link_map.entries]
     offsets = np.stack([e.offset for e in link_map.entries])
     R = recording.orientation[:, ids] @ offsets

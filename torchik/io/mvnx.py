@@ -30,7 +30,10 @@ def _local(tag: str) -> str:
 
 
 def _numbers(text: str | None, count: int, what: str, where: str) -> np.ndarray:
-    values = np.array((text or "").split(), dtype=np.float64)
+    try:
+        values = np.array((text or "").split(), dtype=np.float64)
+    except ValueError:
+        raise RecordingError(f"{where}: {what} holds values that are not numbers") from None
     if values.size != count:
         raise RecordingError(f"{where}: {what} holds {values.size} numbers, expected {count}")
     return values
@@ -82,6 +85,8 @@ def read_mvnx(path: str | Path, base_link: str = "Pelvis") -> Recording:
     except ET.ParseError as exc:
         line, column = exc.position
         raise RecordingError(f"{path}: malformed XML at line {line}, column {column}: {exc}") from None
+    except (ValueError, TypeError) as exc:  # a frame's index, time or the frame rate that is not a number
+        raise RecordingError(f"{path}: after {len(times)} frames: {exc}") from None
     if not segments:
         raise RecordingError(f"{path}: no <segment> definitions; is this an MVNX file?")
     if not times:
