@@ -44,25 +44,29 @@ _ARMS_DOWN = (
     (r"^jLeftShoulder_rotx$", -1.4, 0.0, 0.0, 0.0),
     (r"^[rl]_shoulder_roll$", 0.6, 0.0, 0.0, 0.0),  # iCub: arms by the sides, inside its coupled limits
 )
+# The joints a gait swings, with their phase in the stride; each gait gives their amplitudes.
+_SWING = (
+    (r"Hip_roty$|hip_pitch$", 0.0),
+    (r"Knee_roty$|knee$", -1.2),
+    (r"Ankle_roty$|ankle_pitch$", -2.0),
+    (r"Shoulder_roty$|shoulder_pitch$", math.pi),
+    (r"Elbow_roty$|elbow$", math.pi - 0.5),
+    (r"^jL5S1_rotz$|^jT9T8_rotz$|torso_yaw$", math.pi),
+)
+
+
+def _swinging(amplitudes) -> tuple:
+    """Patterns from (first, second harmonic) amplitudes in _SWING's order, arms down."""
+    return _ARMS_DOWN + tuple((regex, 0.0, h1, h2, phase) for (regex, phase), (h1, h2) in zip(_SWING, amplitudes))
+
+
 SCENARIOS = {
     "tpose": Gait(0.0, 0.25, 0.003, 0.005, 0.01, ((r"^[rl]_shoulder_roll$", 1.5, 0.0, 0.0, 0.0),),
                   default_amplitude=0.01),
-    "walking": Gait(4.0 / 3.6, 0.9, 0.02, 0.025, 0.05, _ARMS_DOWN + (
-        (r"Hip_roty$|hip_pitch$", 0.0, 0.35, 0.05, 0.0),
-        (r"Knee_roty$|knee$", 0.0, 0.30, 0.25, -1.2),
-        (r"Ankle_roty$|ankle_pitch$", 0.0, 0.15, 0.08, -2.0),
-        (r"Shoulder_roty$|shoulder_pitch$", 0.0, 0.25, 0.02, math.pi),
-        (r"Elbow_roty$|elbow$", 0.0, 0.15, 0.03, math.pi - 0.5),
-        (r"^jL5S1_rotz$|^jT9T8_rotz$|torso_yaw$", 0.0, 0.06, 0.0, math.pi),
-    ), default_amplitude=0.03),
-    "running": Gait(10.0 / 3.6, 1.4, 0.05, 0.02, 0.08, _ARMS_DOWN + (
-        (r"Hip_roty$|hip_pitch$", 0.0, 0.55, 0.10, 0.0),
-        (r"Knee_roty$|knee$", 0.0, 0.55, 0.35, -1.2),
-        (r"Ankle_roty$|ankle_pitch$", 0.0, 0.25, 0.10, -2.0),
-        (r"Shoulder_roty$|shoulder_pitch$", 0.0, 0.45, 0.05, math.pi),
-        (r"Elbow_roty$|elbow$", 0.0, 0.25, 0.05, math.pi - 0.5),
-        (r"^jL5S1_rotz$|^jT9T8_rotz$|torso_yaw$", 0.0, 0.10, 0.0, math.pi),
-    ), default_amplitude=0.05),
+    "walking": Gait(4.0 / 3.6, 0.9, 0.02, 0.025, 0.05, _swinging(
+        ((0.35, 0.05), (0.30, 0.25), (0.15, 0.08), (0.25, 0.02), (0.15, 0.03), (0.06, 0.0))), default_amplitude=0.03),
+    "running": Gait(10.0 / 3.6, 1.4, 0.05, 0.02, 0.08, _swinging(
+        ((0.55, 0.10), (0.55, 0.35), (0.25, 0.10), (0.45, 0.05), (0.25, 0.05), (0.10, 0.0))), default_amplitude=0.05),
 }
 
 

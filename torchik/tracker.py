@@ -216,11 +216,6 @@ class DynamicalIK:
         s = self._require_state()
         return State(s.base_position, self._rotation, s.joint_positions, s.velocity)
 
-    @property
-    def integrator_rotation(self) -> torch.Tensor:
-        """[B,3,3] the base rotation as the integrator holds it (Baumgarte lets it drift off SO(3))."""
-        return self._require_state().base_rotation.clone()
-
     def _require_state(self) -> State:
         if self._state is None:
             raise InputError("call reset() before step()")
