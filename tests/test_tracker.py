@@ -184,9 +184,10 @@ def test_a_batch_of_8_subjects_equals_8_single_runs():
     from torchik.tracker import TargetSequence
 
     batch = TargetSequence(sequences[0].time, cat("position"), cat("linear_velocity"), cat("rotation"), cat("angular_velocity"))
-    together = DynamicalIK(stacked, links, dt=0.01).run(batch)
+    # one backend for both: the batched one, structured for the batch and dense for one subject
+    together = DynamicalIK(stacked, links, dt=0.01, backend="batched").run(batch)
     for i, (model, sequence) in enumerate(zip(models, sequences)):
-        alone = DynamicalIK(model, links, dt=0.01).run(sequence)
+        alone = DynamicalIK(model, links, dt=0.01, backend="batched").run(sequence)
         assert torch.allclose(together.joint_positions[:, i], alone.joint_positions[:, 0], atol=1e-10)
         assert torch.allclose(together.base_rotation[:, i], alone.base_rotation[:, 0], atol=1e-10)
 

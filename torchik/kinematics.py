@@ -564,6 +564,18 @@ class KinematicModel:
         else:  # large batches: write through the transposed view, without transposing the columns
             J.view(B, -1).T.index_copy_(0, sel.pair_flat_index, columns.view(-1, B))
 
+    @property
+    def joint_parents(self) -> list[int]:
+        """Each joint's nearest ancestor joint (-1 where only the base lies above it): the joints'
+        own tree, which the structured QP solve eliminates leaves first."""
+        above = self._ancestor_np[self._joint_frame_py]  # [n,n] ancestor-or-self joints of each joint
+        depth = above.sum(1)
+        parents = []
+        for j in range(self.n_dof):  # build time only
+            candidates = [k for k in np.flatnonzero(above[j]) if k != j]
+            parents.append(int(max(candidates, key=lambda k: depth[k])) if candidates else -1)
+        return parents
+
     def zero_configuration(self, batch: int = 1) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The zero configuration: base at the origin, identity rotation, s = 0. Shapes [B,3], [B,3,3], [B,n]."""
         kw = dict(dtype=self.dtype, device=self.device)

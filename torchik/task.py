@@ -47,34 +47,36 @@ class TaskStructure:
 
 def normal_equations(structure: TaskStructure, joint_axes: torch.Tensor, position_jacobian: torch.Tensor | None,
                      v_position: torch.Tensor, v_orientation: torch.Tensor, damping: float,
-                     w_position: torch.Tensor | None = None, w_orientation: torch.Tensor | None = None):
+                     w_position: torch.Tensor | None = None, w_orientation: torch.Tensor | None = None,
+                     hessian: bool = True):
     """H [B,N,N] and g [B,N] of min ||v* - J nu||^2 + damping ||nu||^2, N = 6 + n.
 
     joint_axes: [B,n,3] world axes; position_jacobian: [B,n_p,6,N] (its linear rows are used);
     v_position: [B,n_p,3], v_orientation: [B,n_o,3] the corrected velocities v*;
     w_position [B,n_p], w_orientation [B,n_o]: target weights (None: all 1).
+    hessian: False to skip H (returned as None) when a structured solver builds its own.
     """
     B, n = joint_axes.shape[0], joint_axes.shape[1]
     N = 6 + n
     M = structure.orientation_mask
-    H = joint_axes.new_zeros(B, N, N)
+    H = joint_axes.new_zeros(B, N, N) if hessian else None
     g = joint_axes.new_zeros(B, N)
     if M.shape[0]:
-        if w_orientation is None:
-            total = torch.full((B,), float(M.shape[0]), dtype=H.dtype, device=H.device)
-            columns = structure.orientation_columns.expand(B, n)
-            pairs = structure.orientation_pairs
-            weighted_v = v_orientation
-        else:
-            total = w_orientation.sum(-1)
-            columns = w_orientation @ M  # [B,n]
-            pairs = (M.T * w_orientation[:, None, :]) @ M  # [B,n,n]
-            weighted_v = w_orientation[..., None] * v_orientation
-        H.diagonal(dim1=1, dim2=2)[:, 3:6] += total[:, None]
-        coupling = columns[..., None] * joint_axes  # [B,n,3]
-        H[:, 6:, 3:6] = coupling
-        H[:, 3:6, 6:] = coupling.transpose(1, 2)
-        H[:, 6:, 6:] = pairs * (joint_axes @ joint_axes.transpose(1, 2))
+        weighted_v = v_orientation if w_orientation is None else w_orientation[..., None] * v_orientation
+        if hessian:
+            if w_orientation is None:
+                total = torch.full((B,), float(M.shape[0]), dtype=H.dtype, device=H.device)
+                columns = structure.orientation_columns.expand(B, n)
+                pairs = structure.orientation_pairs
+            else:
+                total = w_orientation.sum(-1)
+                columns = w_orientation @ M  # [B,n]
+                pairs = (M.T * w_orientation[:, None, :]) @ M  # [B,n,n]
+            H.diagonal(dim1=1, dim2=2)[:, 3:6] += total[:, None]
+            coupling = columns[..., None] * joint_axes  # [B,n,3]
+            H[:, 6:, 3:6] = coupling
+            H[:, 3:6, 6:] = coupling.transpose(1, 2)
+            H[:, 6:, 6:] = pairs * (joint_axes @ joint_axes.transpose(1, 2))
         g[:, 3:6] = -weighted_v.sum(1)
         g[:, 6:] = -(joint_axes * (M.T @ weighted_v)).sum(-1)
     if position_jacobian is not None and position_jacobian.shape[1]:
@@ -83,7 +85,10 @@ def normal_equations(structure: TaskStructure, joint_axes: torch.Tensor, positio
         if w_position is not None:
             rows = w_position.repeat_interleave(3, dim=1)
             Jp, vp = Jp * rows[..., None], vp * rows  # zero rows for dropped targets (weights are 0 or 1)
-        H = H + Jp.transpose(1, 2) @ Jp
+        if hessian:
+            H = H + Jp.transpose(1, 2) @ Jp
         g = g - (Jp.transpose(1, 2) @ vp.unsqueeze(-1)).squeeze(-1)
+    if not hessian:
+        return None, g
     H.diagonal(dim1=1, dim2=2).add_(damping)
     return H, g

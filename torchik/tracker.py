@@ -41,7 +41,7 @@ from .errors import InputError
 from .integrate import ROTATION_INTEGRATORS, integrate, orthonormalize
 from .kinematics import KinematicModel, LinkKinematics
 from .limits import LimitSettings, base_velocity_bounds, linear_limit_bounds, velocity_bounds
-from .qp import QPProblem, make_backend
+from .qp import BACKENDS, BatchedBackend, QPBackend, JointTree, QPProblem, TreeHessian, make_backend
 from .residual import orientation_error, orientation_residual
 from .targets import Targets, check_targets, clean_targets
 from .task import TaskStructure, normal_equations
@@ -128,10 +128,13 @@ class DynamicalIK:
     position_gain, orientation_gain: K per block, a scalar or one per target (1/s).
     dt: nominal time step (s); `step(..., dt=...)` may vary it (jittered timestamps).
     scheme: 'midpoint' (second order, default) or 'paper'; rotation_integrator: 'baumgarte' (rho:
-    baumgarte_gain, 1/s) or 'exp'; damping: lambda; limits: LimitSettings; backend: 'piqp'.
+    baumgarte_gain, 1/s) or 'exp'; damping: lambda; limits: LimitSettings; backend: 'piqp'
+    (PIQP per subject), 'batched' (the whole batch in torch) or 'auto' (default: batched when
+    B > 1 or on CUDA, else PIQP), or a configured QPBackend instance.
     """
 
     STACK_BELOW = 16  # batches up to this size evaluate both configurations of a step in one call
+    TREE_FROM = 8  # from this batch size the batched backend solves with the tree structure, below densely
 
     def __init__(
         self,
@@ -146,7 +149,7 @@ class DynamicalIK:
         baumgarte_gain: float = 100.0,
         damping: float = 1e-9,
         limits: LimitSettings = LimitSettings(),
-        backend: str = "piqp",
+        backend: "str | QPBackend" = "auto",
     ):
         if scheme not in SCHEMES:
             raise InputError(f"unknown scheme {scheme!r}; valid: {', '.join(SCHEMES)}")
@@ -175,13 +178,31 @@ class DynamicalIK:
         self.position_gain, self.orientation_gain = gains
         self.dt, self.scheme, self.rotation_integrator = float(dt), scheme, rotation_integrator
         self.baumgarte_gain, self.damping, self.limits = float(baumgarte_gain), float(damping), limits
-        self.backend = make_backend(backend)
+        if isinstance(backend, str) and backend != "auto" and backend not in BACKENDS:
+            raise InputError(f"unknown QP backend {backend!r}; valid: auto, {', '.join(BACKENDS)}")
+        self.backend_name, self._backends = backend, {}
+        self.backend = self._backend_for(1)
+        # The structured solve needs every position target on the base link (the base's linear
+        # velocity is then its own block of H) and a joint to eliminate; otherwise the batched backend
+        # works densely.
+        self._tree = JointTree.build(model, self.orientation_links) \
+            if set(self.position_links) <= {model.base_link} and model.n_dof > 0 else None
         bound = SCHEMES[scheme]
         largest = float(torch.cat((self.position_gain, self.orientation_gain)).max()) * self.dt
         if largest >= bound:
             warnings.warn(f"K dt = {largest:.3g} is beyond the {scheme} scheme's stability bound {bound}: "
                           f"the tracking error will grow; lower the gains or the time step", stacklevel=2)
         self._state: State | None = None
+
+    def _backend_for(self, batch: int):
+        name = self.backend_name
+        if not isinstance(name, str):  # a configured QPBackend instance
+            return name
+        if name == "auto":
+            name = "batched" if batch > 1 or self.model.device.type == "cuda" else "piqp"
+        if name not in self._backends:
+            self._backends[name] = make_backend(name)
+        return self._backends[name]
 
     # ------------------------------------------------------------------ state
     def reset(self, state: State | None = None, batch: int = 1) -> State:
@@ -203,6 +224,8 @@ class DynamicalIK:
         self._last_dt = self._nominal_dt
         self._velocity_slope = torch.zeros_like(state.velocity)
         self._base_bounds = base_velocity_bounds(B, self.limits, **kw)
+        self.backend = self._backend_for(B)
+        self._structured = self._tree is not None and isinstance(self.backend, BatchedBackend) and B >= self.TREE_FROM
         stacked = self.scheme == "midpoint" and B <= self.STACK_BELOW and self.model.n_subjects == 1
         rows = 2 * B if stacked else B
         self._buffers = self.model.empty_output(rows, self._selection, self._task.position is not None,
@@ -277,14 +300,16 @@ class DynamicalIK:
                                                         clean.orientation_valid.to(q.velocity.dtype))
         H, g = normal_equations(self._task, mid.joint_axes, mid.jacobian,
                                 v_p + self.position_gain[:, None] * r_p, v_o + self.orientation_gain[:, None] * r_o,
-                                self.damping, *weights)
+                                self.damping, *weights, hessian=not self._structured)
+        tree = TreeHessian.from_targets(self._tree, mid.joint_axes, self.damping, len(self.position_links),
+                                        weights[1], weights[0]) if self._structured else None
         lb, ub = velocity_bounds(q.joint_positions, model.lower, model.upper, self.limits, dt, self._base_bounds)
         G = h = None
         if model.linear_limits is not None:
             A = model.linear_limits.A
             G = torch.cat((A.new_zeros(A.shape[0], 6), A), dim=1).expand(B, -1, -1)
             h = linear_limit_bounds(q.joint_positions, A, model.linear_limits.b, self.limits, dt)
-        problem = QPProblem(H, g, lb, ub, G, h)
+        problem = QPProblem(H, g, lb, ub, G, h, tree)
         qp_start = time.perf_counter()
         solution = self.backend.solve(problem, warm_start=q.velocity)
         qp_time = time.perf_counter() - qp_start

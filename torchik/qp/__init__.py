@@ -2,18 +2,21 @@
 
     minimise 1/2 x^T H x + g^T x   subject to   lb <= x <= ub,   G x <= h
 
-`PiqpBackend` solves it subject by subject with PIQP through qpsolvers. Another backend (a
-batched solver in torch) fills the same `QPBackend.solve`.
+`PiqpBackend` solves it subject by subject with PIQP through qpsolvers; `BatchedBackend` solves
+the whole batch at once in torch (CPU or GPU) by a primal-dual active-set method, using the
+step's tree structure (`TreeHessian`) when the problem carries it.
 """
 
 from .base import QPBackend, QPProblem, QPSolution, clipped_fallback, unconstrained_if_feasible
+from .batched import BatchedBackend, DenseHessian
 from .piqp_backend import PiqpBackend
+from .tree import JointTree, TreeHessian
 
-BACKENDS = {"piqp": PiqpBackend}
+BACKENDS = {"piqp": PiqpBackend, "batched": BatchedBackend}
 
 
 def make_backend(name: str, **options) -> QPBackend:
-    """A backend by name ('piqp')."""
+    """A backend by name ('piqp' or 'batched')."""
     from ..errors import InputError
 
     if name not in BACKENDS:
@@ -21,4 +24,5 @@ def make_backend(name: str, **options) -> QPBackend:
     return BACKENDS[name](**options)
 
 
-__all__ = ["QPBackend", "QPProblem", "QPSolution", "PiqpBackend", "clipped_fallback", "unconstrained_if_feasible", "make_backend", "BACKENDS"]
+__all__ = ["QPBackend", "QPProblem", "QPSolution", "PiqpBackend", "BatchedBackend", "DenseHessian", "JointTree",
+           "TreeHessian", "clipped_fallback", "unconstrained_if_feasible", "make_backend", "BACKENDS"]

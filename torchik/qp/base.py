@@ -7,29 +7,45 @@ from dataclasses import dataclass
 
 import torch
 
+from .tree import TreeHessian
+
 
 @dataclass(frozen=True)
 class QPProblem:
     """min 1/2 x^T H x + g^T x  s.t.  lb <= x <= ub,  G x <= h, for a batch.
 
-    H: [B,N,N] symmetric positive definite; g: [B,N]; lb, ub: [B,N] (+-inf where free);
-    G: [B,m,N] or None; h: [B,m] or None.
+    H: [B,N,N] symmetric positive definite, or None when `tree` gives it in structured form
+    (a TreeHessian, which the batched backend solves in O(N)); g: [B,N]; lb, ub: [B,N] (+-inf
+    where free); G: [B,m,N] or None; h: [B,m] or None.
     """
 
-    H: torch.Tensor
+    H: torch.Tensor | None
     g: torch.Tensor
     lb: torch.Tensor
     ub: torch.Tensor
     G: torch.Tensor | None = None
     h: torch.Tensor | None = None
+    tree: "TreeHessian | None" = None
+
+    @property
+    def dense_hessian(self) -> torch.Tensor:
+        """H as a dense [B,N,N] matrix (formed from `tree` when H is None)."""
+        return self.H if self.H is not None else self.tree.dense()
 
 
 @dataclass(frozen=True)
 class QPSolution:
-    """x: [B,N]; solved: [B] bool, False where the solver failed and x is the clipped fallback."""
+    """x: [B,N]; solved: [B] bool, False where the solver failed and x is the clipped fallback.
+
+    Where the backend reports them, the KKT multipliers: bound_multipliers [B,N] (positive
+    against an upper bound, negative against a lower one, 0 where free) and row_multipliers [B,m]
+    (>= 0), with H x + g + G^T row + bound = 0.
+    """
 
     x: torch.Tensor
     solved: torch.Tensor
+    bound_multipliers: torch.Tensor | None = None
+    row_multipliers: torch.Tensor | None = None
 
 
 class QPBackend(ABC):
@@ -49,7 +65,7 @@ def unconstrained_if_feasible(problem: QPProblem) -> tuple[torch.Tensor, torch.T
     (strictly, no tolerance) is the constrained optimum too; a solver is needed only elsewhere.
     Returns x [B,N] and feasible [B] bool (False also where H is not numerically positive definite).
     """
-    L, info = torch.linalg.cholesky_ex(problem.H)
+    L, info = torch.linalg.cholesky_ex(problem.dense_hessian)
     x = torch.cholesky_solve(-problem.g.unsqueeze(-1), L).squeeze(-1)
     feasible = (info == 0) & torch.isfinite(x).all(-1) & (x >= problem.lb).all(-1) & (x <= problem.ub).all(-1)
     if problem.G is not None:
@@ -63,7 +79,11 @@ def clipped_fallback(problem: QPProblem) -> torch.Tensor:
     The unconstrained minimiser clipped to the bounds, then shrunk towards zero until G x <= h
     holds (zero joint rates satisfy it whenever the state is within its linear limits).
     """
-    x = torch.linalg.solve(problem.H, -problem.g.unsqueeze(-1)).squeeze(-1)
+    if problem.tree is not None:
+        free = torch.ones_like(problem.g, dtype=torch.bool)
+        x = problem.tree.factor(free).solve(-problem.g.unsqueeze(-1)).squeeze(-1)
+    else:
+        x = torch.linalg.solve(problem.H, -problem.g.unsqueeze(-1)).squeeze(-1)
     x = torch.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0)
     x = torch.minimum(torch.maximum(x, problem.lb), problem.ub)
     if problem.G is not None:

@@ -12,7 +12,8 @@ from .base import QPBackend, QPProblem, QPSolution, clipped_fallback, unconstrai
 
 
 class PiqpBackend(QPBackend):
-    """PIQP (proximal interior point) per subject. eps_abs, eps_rel: PIQP's tolerances."""
+    """PIQP (proximal interior point) per subject. eps_abs, eps_rel: PIQP's tolerances, on the
+    residuals and the duality gap alike."""
 
     name = "piqp"
 
@@ -34,12 +35,15 @@ class PiqpBackend(QPBackend):
             return QPSolution(x, done)
         rows = (~done).nonzero().flatten().tolist()
         numpy = lambda t: None if t is None else t.detach().cpu().double().numpy()  # noqa: E731
-        H, g, lb, ub, G, h = (numpy(t) for t in (problem.H, problem.g, problem.lb, problem.ub, problem.G, problem.h))
+        H, g, lb, ub, G, h = (numpy(t) for t in (problem.dense_hessian, problem.g, problem.lb, problem.ub, problem.G, problem.h))
         solved = torch.ones_like(done)
         for b in rows:  # PIQP solves one problem per call; the batched backend removes this loop
             qp = self._qpsolvers.Problem(H[b], g[b], None if G is None else G[b], None if h is None else h[b],
                                          lb=lb[b], ub=ub[b])
-            solution = self._qpsolvers.solve_problem(qp, solver="piqp", eps_abs=self.eps_abs, eps_rel=self.eps_rel)
+            # the duality gap needs its own tolerances: at PIQP's defaults a solve can stop with a bound
+            # held loosely and the step off by 1e-3 on these nearly singular Hessians
+            solution = self._qpsolvers.solve_problem(qp, solver="piqp", eps_abs=self.eps_abs, eps_rel=self.eps_rel,
+                                                     eps_duality_gap_abs=self.eps_abs, eps_duality_gap_rel=self.eps_rel)
             if solution.found and solution.x is not None and np.all(np.isfinite(solution.x)):
                 x[b] = torch.tensor(solution.x, dtype=x.dtype, device=x.device)
             else:
