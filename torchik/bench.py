@@ -66,13 +66,13 @@ def bench_batched(name: str, batch: int, device: str, dtype, min_seconds: float,
     """The tracker's whole step for `batch` subjects at once; timed over up to `max_steps` steps
     or `min_seconds`, whichever comes first, after `warmup` steps."""
     from .models import TRACKED_LINKS, load_model
-    from .synthetic import targets_from_motion
     from .tracker import DynamicalIK
 
     model, links = load_model(name, dtype=dtype, device=device), TRACKED_LINKS[name]
+    # enough steps for min_seconds at a first guess of the speed (1e5 subject-steps/s), at most max_steps
+    max_steps = max(3, min(max_steps, int(1e5 * min_seconds / batch) + 1))
     motion = _motion(model, batch, warmup + max_steps)
-    sequence = targets_from_motion(model, motion, links)
-    sequence = type(sequence)(*(x.to(device) for x in vars(sequence).values()))
+    sequence = _targets(model, motion, links, device)
     tracker = DynamicalIK(model, links, position_gain=GAIN, orientation_gain=GAIN, dt=1 / RATE, damping=DAMPING,
                           backend="batched")
     state = motion.state(0)
@@ -96,6 +96,22 @@ def bench_batched(name: str, batch: int, device: str, dtype, min_seconds: float,
     return Measurement(name, "torchik batched", batch, steps, seconds, batch * steps / seconds, active / steps,
                        iterations / steps, rescued / (batch * steps), unsolved / (batch * steps),
                        float(diagnostics.mnte.max()))
+
+
+def _targets(model, motion, links, device: str):
+    """The motion's targets, computed a few steps at a time: all at once, the Jacobians of T x B
+    configurations would not fit in memory at B = 8192."""
+    from .synthetic import Motion, targets_from_motion
+    from .tracker import TargetSequence
+
+    T, B = motion.joint_positions.shape[:2]
+    chunk = max(1, 16384 // B)
+    parts = []
+    for start in range(0, T, chunk):
+        piece = Motion(*(x[start:start + chunk].to(model.device) for x in vars(motion).values()))
+        parts.append(targets_from_motion(model, piece, links))
+    fields = {name: torch.cat([getattr(p, name) for p in parts]).to(device) for name in vars(parts[0])}
+    return TargetSequence(**fields)
 
 
 def _synchronize(device: str) -> None:
