@@ -1,5 +1,6 @@
 # Two commands for a fresh machine:
-#   make demo   create .venv, install torchik (CPU build of torch), track the built-in walking scenario
+#   make demo   create .venv, install torchik (CPU build of torch), track the built-in walking scenario and
+#               write walk.rrd (open it with .venv/bin/rerun walk.rrd) and walk.json
 #   make test   create .venv, install torchik with the test extras, run the test suite
 # For a CUDA build of torch:  make demo TORCH="torch==2.13.0 --index-url https://download.pytorch.org/whl/cu128"
 
@@ -26,7 +27,8 @@ $(VENV)/.torchik-test: $(VENV)/.torch pyproject.toml
 
 demo: $(VENV)/.torchik
 	$(BIN)/torchik models
-	$(BIN)/torchik track --scenario walking --model human66 --report walk.json --out walk.npz --force
+	$(BIN)/torchik track --scenario walking --model human66 --rrd walk.rrd --report walk.json --force
+	@echo "open the recording with: $(BIN)/rerun walk.rrd"
 
 test: $(VENV)/.torchik-test
 	$(BIN)/python -m pytest -q

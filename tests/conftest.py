@@ -25,3 +25,13 @@ def random_configurations(model, batch: int, seed: int, joint_scale: float = 1.0
     R = so3.random_rotation((batch,), g)
     s = joint_scale * torch.randn(batch, model.n_dof, generator=g, dtype=torch.float64)
     return p, R, s
+
+
+@pytest.fixture(scope="module")
+def one_thread():
+    """Torch on one thread for a module's tests: one subject's problems are too small for threads
+    to pay, and on a shared machine idle threads only spin and wait for each other."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)

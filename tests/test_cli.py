@@ -1,11 +1,41 @@
-"""cli: `torchik models` lists the models; bad input exits 2 with one line saying why."""
+"""cli: every sub-command's --help has examples; the README's main command works end to end; bad
+input exits 2 with one line saying what is wrong; an interrupted run leaves valid, shorter outputs."""
 
+import argparse
+import json
+import re
 import subprocess
 import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from torchik.cli import build_parser, main
+
+REPO = Path(__file__).resolve().parents[1]
 
 
-def run(*args):
-    return subprocess.run([sys.executable, "-m", "torchik.cli", *args], capture_output=True, text=True, timeout=120)
+def run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "torchik.cli", *args], capture_output=True, text=True, timeout=120,
+                          cwd=cwd)
+
+
+@pytest.fixture
+def cli(monkeypatch, capsys):
+    """`torchik ARGS` in this process: (exit code, stdout, stderr). Faster than a subprocess; the
+    allocator tuning of the command line is left out (it would stay with pytest's process)."""
+    monkeypatch.setattr("torchik.memory.keep_freed_memory", lambda: True)
+
+    def call(*args):
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as exc:  # argparse: --help and usage errors
+            code = exc.code
+        out, err = capsys.readouterr()
+        return code, out, err
+
+    return call
 
 
 def test_models_lists_the_three_models():
@@ -15,15 +45,24 @@ def test_models_lists_the_three_models():
     assert "iCub: 32 DoF" in result.stdout and "18 coupled linear limits" in result.stdout
 
 
-def test_help_has_examples():
-    result = run("models", "--help")
-    assert result.returncode == 0 and "examples:" in result.stdout
+def test_every_sub_command_has_help_with_examples(cli):
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    assert {"track", "models", "info", "convert", "bench"} <= set(sub.choices)
+    for command in [None, *sub.choices]:  # whatever sub-commands the parser has, as they land
+        code, out, _ = cli(*([command] if command else []), "--help")
+        assert code == 0 and out.startswith(f"usage: torchik {command or ''}".rstrip()), command
+        assert "examples:" in out and "\n  torchik " in out.split("examples:")[1], command
 
 
-def test_write_generates_urdfs_for_a_subject(tmp_path):
+def test_write_generates_urdfs_for_a_subject_and_keeps_existing_ones(tmp_path, cli):
     result = run("models", "--write", str(tmp_path), "--height", "1.9", "--segment", "RightHand=0.2")
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "human66.urdf").is_file() and (tmp_path / "human48.urdf").is_file()
+    written = (tmp_path / "human66.urdf").read_text()
+    code, _, err = cli("models", "--write", tmp_path)
+    assert code == 2 and "human48.urdf exist; add --force" in err and (tmp_path / "human66.urdf").read_text() == written
+    assert cli("models", "--write", tmp_path, "--force")[0] == 0
+    assert (tmp_path / "human66.urdf").read_text() != written  # subject 1 is shorter than 1.9 m
 
 
 def test_bad_input_exits_2_with_one_line():
@@ -34,65 +73,159 @@ def test_bad_input_exits_2_with_one_line():
     assert run("models", "--links", "robot").returncode == 2  # argparse's own check
 
 
-def test_convert_and_info_on_an_mvnx_file(tmp_path):
+def test_convert_and_info_on_an_mvnx_file(tmp_path, cli):
     from test_mvnx import mvnx_text
 
     source = tmp_path / "spin.mvnx"
     source.write_text(mvnx_text(30))
     out = tmp_path / "spin.npz"
-    result = run("convert", str(source), str(out))
-    assert result.returncode == 0, result.stderr
-    assert run("convert", str(source), str(out)).returncode == 2  # exists: needs --force
-    assert run("convert", str(source), str(out), "--force").returncode == 0
-    info = run("info", str(out))
-    assert info.returncode == 0 and "30 frames, 100.00 Hz" in info.stdout and "Pelvis, Head" in info.stdout
-    bad = run("info", str(tmp_path / "walk.xyz"))
-    assert bad.returncode == 2 and "unsupported format '.xyz'" in bad.stderr and "Traceback" not in bad.stderr
+    code, _, err = cli("convert", source, out)
+    assert code == 0, err
+    assert cli("convert", source, out)[0] == 2  # exists: needs --force
+    assert cli("convert", source, out, "--force")[0] == 0
+    code, stdout, _ = cli("info", out)
+    assert code == 0 and "30 frames, 100.00 Hz" in stdout and "Pelvis, Head" in stdout
+    code, _, err = cli("info", tmp_path / "walk.xyz")
+    assert code == 2 and "unsupported format '.xyz'" in err
 
 
-def test_track_a_scenario_end_to_end_with_report_and_trajectory(tmp_path):
-    import json
-
-    import numpy as np
-
+def test_track_a_scenario_end_to_end_with_report_and_trajectory(tmp_path, cli):
     report, out = tmp_path / "walk.json", tmp_path / "walk.npz"
-    result = run("track", "--scenario", "walking", "--model", "human48", "--duration", "3", "--report", str(report), "--out", str(out))
-    assert result.returncode == 0, result.stderr
-    assert "MNTE after 2 s" in result.stdout
+    code, stdout, err = cli("track", "--scenario", "walking", "--model", "human48", "--duration", "3",
+                            "--report", report, "--out", out)
+    assert code == 0, err
+    assert "MNTE after 2 s" in stdout
     data = json.loads(report.read_text())
     assert data["frames"] == 301 and data["mnte"]["p99"] < 1e-6 and data["qp_fallbacks"] == 0
     assert data["joint_error_rad"]["max"] < 1e-3
     trajectory = np.load(out)
     assert trajectory["joint_positions"].shape == (301, 48) and len(trajectory["joint_names"]) == 48
-    again = run("track", "--scenario", "walking", "--model", "human48", "--duration", "3", "--report", str(report))
-    assert again.returncode == 2 and "exists; add --force" in again.stderr
+    code, _, err = cli("track", "--scenario", "walking", "--model", "human48", "--duration", "3", "--report", report)
+    assert code == 2 and "exists; add --force" in err
 
 
-def test_track_a_recording_file_and_refuse_bad_input(tmp_path):
+def test_track_a_recording_file_and_refuse_bad_input(tmp_path, cli):
     from torchik.io import save_recording
     from torchik.models import TRACKED_LINKS, load_model
     from torchik.scenarios import scenario
 
     path = save_recording(scenario("tpose", load_model("icub"), TRACKED_LINKS["icub"], duration=1.0), tmp_path / "t.npz")
-    result = run("track", "--input", str(path), "--model", "icub", "--quiet")
-    assert result.returncode == 0 and result.stdout == ""
-    wrong = run("track", "--input", str(path), "--model", "human66")
-    assert wrong.returncode == 2 and "the recording has no" in wrong.stderr and "Traceback" not in wrong.stderr
-    assert run("track", "--scenario", "dancing").returncode == 2
-    assert run("track", "--model", "robot").returncode == 2
+    assert cli("track", "--input", path, "--model", "icub", "--quiet") == (0, "", "")
+    code, _, err = cli("track", "--input", path, "--model", "human66")
+    assert code == 2 and "the recording has no" in err
 
 
-def test_track_through_a_map_with_calibration():
-    from pathlib import Path
-
-    shared = Path(__file__).resolve().parents[2] / "shared" / "data" / "c3d"
+def test_track_through_a_map_with_calibration(cli):
+    shared = REPO.parent / "shared" / "data" / "c3d"
     if not (shared / "HC002D02.c3d").is_file():
-        import pytest
-
         pytest.skip("../shared/data absent")
-    result = run("track", "--input", str(shared / "HC002D25.c3d"), "--map", "plugin_gait_to_human",
-                 "--calibration", str(shared / "HC002D02.c3d"), "--model", "human48")
+    code, stdout, err = cli("track", "--input", shared / "HC002D25.c3d", "--map", "plugin_gait_to_human",
+                            "--calibration", shared / "HC002D02.c3d", "--model", "human48")
+    assert code == 0, err
+    assert "through map 'plug-in gait to human'" in stdout
+    code, _, err = cli("track", "--input", shared / "HC002D25.c3d", "--map", "xsens_to_human", "--model", "human48")
+    assert code == 2 and "lacks" in err
+
+
+def readme_main_command() -> str:
+    """The README's main command: the `$ torchik track ...` line of its first example."""
+    commands = re.findall(r"^\$ (torchik track .*)$", (REPO / "README.md").read_text(), flags=re.MULTILINE)
+    assert commands, "README.md shows no `$ torchik track ...` command"
+    return commands[0]
+
+
+def test_the_readme_main_command_writes_a_report_and_a_recording_that_agree(tmp_path):
+    from test_rrd import column, read_rrd
+
+    command = readme_main_command()
+    assert "--rrd walk.rrd" in command and "--report walk.json" in command and "--model human66" in command
+    readme, makefile = (REPO / "README.md").read_text(), (REPO / "Makefile").read_text()
+    assert "rerun walk.rrd" in readme and command.split(" ", 1)[1] in makefile  # `make demo` runs it
+    result = run(*command.split()[1:], "--duration", "1", cwd=tmp_path)  # the same, on a short scenario
     assert result.returncode == 0, result.stderr
-    assert "through map 'plug-in gait to human'" in result.stdout
-    missing = run("track", "--input", str(shared / "HC002D25.c3d"), "--map", "xsens_to_human", "--model", "human48")
-    assert missing.returncode == 2 and "lacks" in missing.stderr
+    assert "open it with: rerun walk.rrd" in result.stdout
+    report = json.loads((tmp_path / "walk.json").read_text())
+    assert report["frames"] == 101 and report["model"] == "Human66" and not report["interrupted"]
+    frame = read_rrd(tmp_path / "walk.rrd", "/subject/0/errors/mnte")
+    assert len(frame) == 101
+    # 1 s is within the 2 s transient: the report's statistics are over every frame, as logged
+    assert column(frame, "/subject/0/errors/mnte").max() == report["mnte"]["max"]
+
+
+@pytest.fixture(scope="module")
+def human_recording(tmp_path_factory):
+    """A 0.5 s recording whose segments are Human66's links."""
+    from torchik.io import save_recording
+    from torchik.models import TRACKED_LINKS, load_model
+    from torchik.scenarios import scenario
+
+    path = tmp_path_factory.mktemp("recording") / "walk.npz"
+    return save_recording(scenario("walking", load_model("human66"), TRACKED_LINKS["human66"], duration=0.5), path)
+
+
+@pytest.mark.parametrize("args, says", [
+    (("track", "--input", "missing.npz"), "missing.npz: no such file"),
+    (("track", "--model", "robot"), "invalid choice: 'robot' (choose from 'human66', 'human48', 'icub')"),
+    (("track", "--scenario", "dancing"), "unknown scenario 'dancing'; valid: tpose, walking, running"),
+    (("track", "--input", "RECORDING", "--map", "cmu_to_human"), "that the recording lacks; it has ['Pelvis'"),
+    (("track", "--input", "RECORDING", "--map", "no_such_map"), "built-in maps: bandai_to_human"),
+    (("track", "--rrd", "walk.txt"), "must end in .rrd"),
+    (("track", "--rrd", "no/such/folder/walk.rrd"), "no folder no/such/folder to write into"),
+    (("track", "--report", "EXISTING"), "exists; add --force to overwrite it"),
+    (("track", "--device", "tpu"), "expected cpu, cuda or cuda:N"),
+    (("track", "--gain", "fast"), "argument --gain: invalid float value: 'fast'"),
+    (("info", "missing.bvh"), "missing.bvh: no such file"),
+    (("unknown",), "invalid choice: 'unknown'"),
+])
+def test_bad_input_exits_2_with_one_line_saying_what_is_wrong(args, says, cli, human_recording, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "EXISTING").write_text("kept")
+    args = [str(human_recording) if a == "RECORDING" else a for a in args]
+    code, out, err = cli(*args)
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and err.startswith("torchik") and says in err, err
+    assert (tmp_path / "EXISTING").read_text() == "kept"
+
+
+def test_an_interrupted_track_leaves_valid_shorter_outputs(tmp_path, cli, monkeypatch):
+    from test_rrd import read_rrd
+
+    from torchik.tracker import DynamicalIK
+
+    step, calls = DynamicalIK.step, []
+
+    def interrupted_after_7(self, *args, **kwargs):  # Ctrl-C during the 8th step
+        calls.append(1)
+        if len(calls) > 7:
+            raise KeyboardInterrupt
+        return step(self, *args, **kwargs)
+
+    monkeypatch.setattr(DynamicalIK, "step", interrupted_after_7)
+    rrd, report, out = tmp_path / "walk.rrd", tmp_path / "walk.json", tmp_path / "walk.npz"
+    code, _, err = cli("track", "--duration", "1", "--rrd", rrd, "--report", report, "--out", out, "--quiet")
+    assert code == 130 and "interrupted; the outputs hold the 7 frames tracked" in err
+    assert len(read_rrd(rrd, "/subject/0/errors/mnte")) == 7
+    data = json.loads(report.read_text())
+    assert data["frames"] == 7 and data["interrupted"] is True
+    assert np.load(out)["joint_positions"].shape == (7, 66)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["walk.json", "walk.npz", "walk.rrd"]  # no leftovers
+
+
+def test_ctrl_c_during_tracking_leaves_valid_shorter_outputs(tmp_path):
+    import signal
+
+    from test_rrd import read_rrd
+
+    command = [sys.executable, "-m", "torchik.cli", "track", "--duration", "30", "--rrd", "walk.rrd", "--report", "walk.json"]
+    # a terminal's Ctrl-C: SIGINT with its default action (a background job of a script would ignore it)
+    process = subprocess.Popen(command, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    seen = ""
+    while "tracking:" not in seen and process.poll() is None:  # the progress bar: tracking has run a second
+        seen += process.stderr.read(1)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 130, seen + err
+    report = json.loads((tmp_path / "walk.json").read_text())
+    assert report["interrupted"] is True and 0 < report["frames"] < 3001
+    assert len(read_rrd(tmp_path / "walk.rrd", "/subject/0/errors/mnte")) == report["frames"]

@@ -99,19 +99,11 @@ def bench_batched(name: str, batch: int, device: str, dtype, min_seconds: float,
 
 
 def _targets(model, motion, links, device: str):
-    """The motion's targets, computed a few steps at a time: all at once, the Jacobians of T x B
-    configurations would not fit in memory at B = 8192."""
+    """The motion's targets on `device`."""
     from .synthetic import Motion, targets_from_motion
-    from .tracker import TargetSequence
 
-    T, B = motion.joint_positions.shape[:2]
-    chunk = max(1, 16384 // B)
-    parts = []
-    for start in range(0, T, chunk):
-        piece = Motion(*(x[start:start + chunk].to(model.device) for x in vars(motion).values()))
-        parts.append(targets_from_motion(model, piece, links))
-    fields = {name: torch.cat([getattr(p, name) for p in parts]).to(device) for name in vars(parts[0])}
-    return TargetSequence(**fields)
+    motion = Motion(*(x.to(model.device) for x in vars(motion).values()))
+    return targets_from_motion(model, motion, links)
 
 
 def _synchronize(device: str) -> None:

@@ -3,17 +3,35 @@
 MNTE  = 1/n_o sum_i tr(I - R_hat_i^T R_i) / 2          (mean of 1 - cos(angle): 0 to 2)
 RMSE  = sqrt(1/n_o sum_i ||omega_i - omega_hat_i||^2 / 3)
 Statistics are taken after a transient (the paper discards the first 2 s).
+
+tr(I - R_hat^T R)/2 = 1 - cos(angle) spans 0 (equal) to 2 (half a turn apart), not 0 to 1 as the
+paper's text says.
 """
 
 from __future__ import annotations
 
 import torch
 
+from . import so3
+
+
+def orientation_error(R_target: torch.Tensor, R_estimate: torch.Tensor) -> torch.Tensor:
+    """tr(I - R_hat^T R)/2 = 1 - cos(angle) per rotation. R_target, R_estimate: [...,3,3] -> [...].
+
+    Accurate to rounding relative to the value, also for tiny errors: (3 - tr)/2 cancels to
+    +-1e-16 absolute (so a converged solver would show negative MNTE), whereas
+    1 - cos = sin^2 / (1 + cos) uses the skew part, whose size is sin(angle) itself. Beyond 90
+    degrees (cos < 0) the trace formula has no cancellation and is used as it is.
+    """
+    M = R_estimate.transpose(-1, -2) @ R_target
+    cos = (M.diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0) / 2.0
+    sin_squared = so3.skew_vee(M).square().sum(-1)
+    return torch.where(cos > 0, sin_squared / (1.0 + cos.clamp(min=0.0)), 1.0 - cos)
+
 
 def mnte(R_target: torch.Tensor, R_estimate: torch.Tensor) -> torch.Tensor:
     """Mean normalised trace error. R_target, R_estimate: [..., n_o, 3, 3] -> [...]."""
-    trace = (R_estimate * R_target).sum((-1, -2))  # tr(R_hat^T R)
-    return ((3.0 - trace) / 2.0).mean(-1)
+    return orientation_error(R_target, R_estimate).mean(-1)
 
 
 def angular_velocity_rmse(omega_target: torch.Tensor, omega_estimate: torch.Tensor) -> torch.Tensor:
@@ -21,10 +39,14 @@ def angular_velocity_rmse(omega_target: torch.Tensor, omega_estimate: torch.Tens
     return ((omega_target - omega_estimate).square().sum(-1) / 3.0).mean(-1).sqrt()
 
 
+def after_transient(values: torch.Tensor, time: torch.Tensor, transient: float = 2.0) -> torch.Tensor:
+    """values [T,...] at t >= time[0] + transient (all of them when the sequence is shorter)."""
+    keep = time >= time[0] + transient
+    return values[keep] if bool(keep.any()) else values
+
+
 def summary(values: torch.Tensor, time: torch.Tensor, transient: float = 2.0) -> dict[str, float]:
     """Median, 99th percentile, mean and max of values [T,...] over t >= time[0] + transient
     (all samples when the sequence is shorter than that)."""
-    keep = time >= time[0] + transient
-    v = values[keep] if bool(keep.any()) else values
-    v = v.flatten().double()
+    v = after_transient(values, time, transient).flatten().double()
     return dict(median=float(v.median()), p99=float(v.quantile(0.99)), mean=float(v.mean()), max=float(v.max()))

@@ -83,12 +83,19 @@ def periodic_motion(model: KinematicModel, duration: float, rate: float, batch: 
     return Motion(t, p, R, s, velocity)
 
 
-def targets_from_motion(model: KinematicModel, motion: Motion, orientation_links, position_links=None) -> TargetSequence:
+def targets_from_motion(model: KinematicModel, motion: Motion, orientation_links, position_links=None,
+                        chunk: int = 8192) -> TargetSequence:
     """The targets of a motion: link poses from the kinematics, link velocities J(q) nu.
-    Returns a TargetSequence with [T,B,...] tensors."""
+    Returns a TargetSequence with [T,B,...] tensors. The kinematics run on about `chunk`
+    configurations at a time: the Jacobians of a 10-minute recording at once would take gigabytes."""
     position_links = tuple(position_links if position_links is not None else (model.base_link,))
     orientation_links = tuple(orientation_links)
     T, B = motion.joint_positions.shape[:2]
+    steps = max(1, chunk // B)
+    if T > steps:
+        parts = [targets_from_motion(model, Motion(*(x[k:k + steps] for x in vars(motion).values())),
+                                     orientation_links, position_links, chunk) for k in range(0, T, steps)]
+        return TargetSequence(*(torch.cat([getattr(p, name) for p in parts]) for name in vars(parts[0])))
     flat = lambda x: x.reshape((T * B,) + x.shape[2:])  # noqa: E731
     kin_p = model(flat(motion.base_position), flat(motion.base_rotation), flat(motion.joint_positions), position_links)
     kin_o = model(flat(motion.base_position), flat(motion.base_rotation), flat(motion.joint_positions), orientation_links)
