@@ -32,7 +32,7 @@ def step_problems(model, links, batch: int, seed: int, structured: bool = True, 
     base = (model.base_link,)
     task = TaskStructure.build(model, links, base)
     selection = model.select(tuple(dict.fromkeys(base + tuple(links))))
-    kin = model(p, R, s, selection, jacobian=True, jacobian_links=task.position, joint_axes=True)
+    kin = model(p, R, s, selection, jacobian=task.position is not None, jacobian_links=task.position, joint_axes=True)
     scale = 4.0 * torch.rand(batch, 1, 1, generator=gen, **kw)
     v_o = scale * torch.randn(batch, len(links), 3, generator=gen, **kw)
     v_p = torch.randn(batch, 1, 3, generator=gen, **kw)

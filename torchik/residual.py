@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import torch
 
-from . import so3
 
 
 def position_residual(p_target: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
@@ -23,10 +22,11 @@ def orientation_residual(R_target: torch.Tensor, R_hat: torch.Tensor) -> torch.T
     """World-frame orientation residual R_hat sk(R_hat^T R_target)^vee.
 
     R_target, R_hat: [B,n,3,3] link-to-world (R_hat orthonormal) -> [B,n,3].
-    Computed as sk(R_target R_hat^T)^vee: conjugating sk(R_hat^T R_target) by R_hat gives
-    sk(R_target R_hat^T), and R_hat hat(v) R_hat^T = hat(R_hat v).
+    Conjugating sk(R_hat^T R_target) by R_hat gives sk(R_target R_hat^T), as R_hat hat(v) R_hat^T =
+    hat(R_hat v); with columns h_i of R_hat and t_i of R_target, R_target R_hat^T = sum_i t_i h_i^T,
+    whose skew part's vector is (1/2) sum_i h_i x t_i: three cross products, no matrix product.
     """
-    return so3.skew_vee(R_target @ R_hat.transpose(-1, -2))
+    return 0.5 * torch.linalg.cross(R_hat, R_target, dim=-2).sum(-1)
 
 
 def orientation_error(R_target: torch.Tensor, R_hat: torch.Tensor) -> torch.Tensor:

@@ -10,6 +10,15 @@ import torch
 
 
 _HAT_BASIS: dict[tuple[torch.dtype, torch.device], torch.Tensor] = {}
+_IDENTITY: dict[tuple[torch.dtype, torch.device], torch.Tensor] = {}
+
+
+def identity(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """The 3x3 identity, made once per dtype and device (the step uses it several times; read only)."""
+    key = (dtype, torch.device(device))
+    if key not in _IDENTITY:
+        _IDENTITY[key] = torch.eye(3, dtype=dtype, device=device)
+    return _IDENTITY[key]
 
 
 def _hat_basis(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
@@ -69,7 +78,7 @@ def exp(w: torch.Tensor) -> torch.Tensor:
     a = torch.sinc(theta / torch.pi)
     b = 0.5 * torch.sinc(theta / (2 * torch.pi)).square()
     K = hat(w)
-    return torch.eye(3, dtype=w.dtype, device=w.device) + a * K + b * (K @ K)
+    return identity(w.dtype, w.device) + a * K + b * (K @ K)
 
 
 def axis_angle(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
@@ -80,7 +89,7 @@ def axis_angle(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
     K = hat(axis)
     s = torch.sin(angle)[..., None, None]
     c = torch.cos(angle)[..., None, None]
-    eye = torch.eye(3, dtype=axis.dtype, device=axis.device)
+    eye = identity(axis.dtype, axis.device)
     return eye + s * K + (1.0 - c) * (K @ K)
 
 
@@ -100,7 +109,7 @@ def log(R: torch.Tensor) -> torch.Tensor:
     if bool(near_pi.any()):
         # Near pi, sin(theta) vanishes; read the axis from the symmetric part instead:
         # (R + R^T)/2 = cos(theta) I + (1 - cos(theta)) u u^T.
-        eye = torch.eye(3, dtype=R.dtype, device=R.device)
+        eye = identity(R.dtype, R.device)
         B = (0.5 * (R + R.transpose(-1, -2)) - cos[..., None, None] * eye) / (1.0 - cos)[..., None, None]
         col = B.diagonal(dim1=-2, dim2=-1).argmax(-1)
         u = torch.gather(B, -1, col[..., None, None].expand(B.shape[:-1] + (1,))).squeeze(-1)

@@ -8,6 +8,7 @@ tracked link.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -79,9 +80,15 @@ def clean_targets(targets: Targets, project_tolerance: float = 1e-2, orthonormal
     position, linear_velocity = targets.position, targets.linear_velocity
     rotation, angular_velocity = targets.rotation, targets.angular_velocity
     B, n_p, n_o = position.shape[0], position.shape[1], rotation.shape[1]
-    # one check for the usual case: NaN and Inf propagate through a sum
-    total = position.sum() + linear_velocity.sum() + rotation.sum() + angular_velocity.sum()
-    all_valid = bool(torch.isfinite(total))
+    eye = so3.identity(rotation.dtype, rotation.device)
+    orthonormal_tolerance = max(orthonormal_tolerance, 100 * torch.finfo(rotation.dtype).eps)  # float32 rounding
+    deviation = rotation.transpose(-1, -2) @ rotation - eye
+    # one number for the usual case, one synchronisation: the largest deviation from
+    # orthonormality, NaN if any target is not finite (NaN and Inf propagate through the sums)
+    worst = deviation.abs().amax() if n_o else rotation.new_zeros(())
+    worst = worst + 0.0 * (position.sum() + linear_velocity.sum() + angular_velocity.sum())
+    worst = float(worst)
+    all_valid = math.isfinite(worst)
     if all_valid:
         p_ok = torch.ones(B, n_p, dtype=torch.bool, device=position.device)
         o_ok = torch.ones(B, n_o, dtype=torch.bool, device=position.device)
@@ -90,15 +97,13 @@ def clean_targets(targets: Targets, project_tolerance: float = 1e-2, orthonormal
         o_ok = torch.isfinite(rotation).flatten(-2).all(-1) & torch.isfinite(angular_velocity).all(-1)
         position = torch.where(p_ok[..., None], position, 0.0)
         linear_velocity = torch.where(p_ok[..., None], linear_velocity, 0.0)
-        eye = torch.eye(3, dtype=rotation.dtype, device=rotation.device)
         rotation = torch.where(o_ok[..., None, None], rotation, eye)
         angular_velocity = torch.where(o_ok[..., None], angular_velocity, 0.0)
         all_valid = bool(p_ok.all()) and bool(o_ok.all())
-    eye = torch.eye(3, dtype=rotation.dtype, device=rotation.device)
-    orthonormal_tolerance = max(orthonormal_tolerance, 100 * torch.finfo(rotation.dtype).eps)  # float32 rounding
-    deviation = rotation.transpose(-1, -2) @ rotation - eye
+        deviation = rotation.transpose(-1, -2) @ rotation - eye
+        worst = float(deviation.abs().max()) if n_o else 0.0
     projected = torch.zeros(B, dtype=torch.long, device=position.device)
-    if n_o and float(deviation.abs().max()) > orthonormal_tolerance / 3:
+    if n_o and worst > orthonormal_tolerance / 3:
         error = deviation.flatten(-2).norm(dim=-1)  # [B,n_o]
         far = error > project_tolerance
         if bool(far.any()):

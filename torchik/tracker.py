@@ -176,6 +176,7 @@ class DynamicalIK:
                 raise InputError(f"{name}: give a scalar or one gain per target ({n}), got shape {list(gain.shape)}")
             gains.append(gain.expand(n).clone())
         self.position_gain, self.orientation_gain = gains
+        self._position_gain, self._orientation_gain = (gain[:, None] for gain in gains)  # [n,1], against [B,n,3]
         self.dt, self.scheme, self.rotation_integrator = float(dt), scheme, rotation_integrator
         self.baumgarte_gain, self.damping, self.limits = float(baumgarte_gain), float(damping), limits
         if isinstance(backend, str) and backend != "auto" and backend not in BACKENDS:
@@ -220,7 +221,7 @@ class DynamicalIK:
         self._previous = self._before = self._previous_valid = self._before_valid = None
         self._steps = 0
         kw = dict(dtype=state.velocity.dtype, device=state.velocity.device)
-        self._nominal_dt = torch.full((B, 1), self.dt, **kw)
+        self._nominal_dt = self.dt  # a float: arithmetic with it costs no tensor operation
         self._last_dt = self._nominal_dt
         self._velocity_slope = torch.zeros_like(state.velocity)
         self._base_bounds = base_velocity_bounds(B, self.limits, **kw)
@@ -299,7 +300,7 @@ class DynamicalIK:
         weights = (None, None) if clean.all_valid else (clean.position_valid.to(q.velocity.dtype),
                                                         clean.orientation_valid.to(q.velocity.dtype))
         H, g = normal_equations(self._task, mid.joint_axes, mid.jacobian,
-                                v_p + self.position_gain[:, None] * r_p, v_o + self.orientation_gain[:, None] * r_o,
+                                torch.addcmul(v_p, self._position_gain, r_p), torch.addcmul(v_o, self._orientation_gain, r_o),
                                 self.damping, *weights, hessian=not self._structured)
         tree = TreeHessian.from_targets(self._tree, mid.joint_axes, self.damping, len(self.position_links),
                                         weights[1], weights[0]) if self._structured else None
@@ -327,8 +328,8 @@ class DynamicalIK:
         diagnostics = StepDiagnostics(
             mnte=orientation_error(previous.rotation, R_hat).mean(-1) if clean.all_valid
             else self._mean_over_valid(orientation_error(previous.rotation, R_hat), clean.orientation_valid),
-            residual_norm=torch.cat((r_p, r_o), dim=1).norm(dim=-1) * torch.cat(
-                (clean.position_valid, clean.orientation_valid), dim=1),
+            residual_norm=torch.cat((r_p, r_o), dim=1).norm(dim=-1) if clean.all_valid else torch.cat(
+                (r_p, r_o), dim=1).norm(dim=-1) * torch.cat((clean.position_valid, clean.orientation_valid), dim=1),
             active_constraints=self._active(problem, nu),
             solved=solution.solved,
             dropped=clean.dropped,
@@ -380,7 +381,8 @@ class DynamicalIK:
                              + (0.0 if before is None else w_before * getattr(before, name)))
         return mean("linear_velocity"), mean("angular_velocity")
 
-    def _time_step(self, dt, B: int) -> torch.Tensor:
+    def _time_step(self, dt, B: int) -> torch.Tensor | float:
+        """The step's dt: the nominal one (a float) or [B,1]."""
         if dt is None:
             return self._nominal_dt
         kw = dict(dtype=self.model.dtype, device=self.model.device)
@@ -439,9 +441,15 @@ class DynamicalIK:
             from tqdm import tqdm
 
             steps = tqdm(steps, desc="tracking", unit="step", leave=False)
+        # Steps at the nominal rate (to the rounding of the timestamps) take the nominal dt, which
+        # the step treats without per-step checks; others (jitter, gaps) their own, checked here once.
+        gaps = (time_[1:] - time_[:-1]).to(self.model.dtype)
+        rounding = 64 * torch.finfo(time_.dtype).eps * float(time_.abs().max()) if T > 1 else 0.0
+        nominal = [True] + ((gaps - self.dt).abs() <= rounding).tolist()
+        gaps = gaps.to(self.model.device)[:, None].expand(-1, B)
         states, diags = [], []
         for k in steps:
-            dt = None if k == 0 else time_[k] - time_[k - 1]
+            dt = None if nominal[k] else gaps[k - 1]
             state, diag = self.step(sequence[k], dt)
             states.append(state)
             diags.append(diag)
