@@ -125,7 +125,12 @@ def _track(args: argparse.Namespace) -> int:
         # one subject's tensors are too small for torch to split, and on a busy machine its idle
         # threads spin and wait for each other: a step then takes several times longer
         torch.set_num_threads(1)
-    model = load_model(args.model, device=device)
+    if args.urdf:  # e.g. the augmented model a diagnosis wrote
+        from .diagnosis.calibration import load_urdf_model
+
+        model = load_urdf_model(args.urdf, args.model, device)
+    else:
+        model = load_model(args.model, device=device)
     links = TRACKED_LINKS[args.model]
     if args.input:
         recording = read_any(args.input)
@@ -145,6 +150,11 @@ def _track(args: argparse.Namespace) -> int:
         recording = scenario(args.scenario, model.to(device="cpu"), links, duration=args.duration, rate=args.rate,
                              seed=args.seed)
         source = f"scenario {args.scenario} ({args.duration:g} s at {args.rate:g} Hz)"
+    if args.sensor_calibration:  # the sensor effects a diagnosis found, undone
+        from .diagnosis.calibration import apply_calibration_file
+
+        recording = apply_calibration_file(recording, args.sensor_calibration)
+        source += f" with sensor calibration {args.sensor_calibration}"
     position_gain = args.gain if args.position_gain is None else args.position_gain
     orientation_gain = args.gain if args.orientation_gain is None else args.orientation_gain
     start = time.perf_counter()
@@ -174,7 +184,7 @@ def _track(args: argparse.Namespace) -> int:
 
         start = time.perf_counter()
         targets = recording_targets(recording, links, dtype=model.dtype, device=model.device)
-        log_trajectory(args.rrd, model, links, trajectory, targets, urdf=_model_urdf(args.model),
+        log_trajectory(args.rrd, model, links, trajectory, targets, urdf=args.urdf or _model_urdf(args.model),
                        progress=not args.quiet)
         if not args.quiet:
             print(f"wrote {args.rrd} in {time.perf_counter() - start:.1f} s; open it with: rerun {args.rrd}")
@@ -214,6 +224,17 @@ def frame_argument(text: str) -> int | str:
         raise argparse.ArgumentTypeError(f"expected a frame index or 'rest', got {text!r}") from None
 
 
+def add_map_arguments(parser: argparse.ArgumentParser, target: str = "the model's links") -> None:
+    """--map, --calibration and --calibration-frame: how a recording's segments become `target`."""
+    parser.add_argument("--map", help=f"link map from the recording's segments to {target}: a built-in name "
+                                      "(xsens_to_human, plugin_gait_to_human, bandai_to_human, cmu_to_human, "
+                                      "human_to_icub) or a .toml file")
+    parser.add_argument("--calibration", metavar="FILE", help="a static trial to calibrate the map's offsets on")
+    parser.add_argument("--calibration-frame", type=frame_argument, default=None,
+                        help="the frame holding the reference pose: an index, or 'rest' for a BVH rest pose "
+                             "(default: the map's own choice, else 0)")
+
+
 def _segment(text: str) -> tuple[str, float]:
     name, _, value = text.partition("=")
     try:
@@ -243,13 +264,12 @@ def build_parser() -> argparse.ArgumentParser:
     source = track.add_mutually_exclusive_group()
     source.add_argument("--scenario", default="walking", help="built-in scenario: tpose, walking, running (default walking)")
     source.add_argument("--input", metavar="FILE", help="a recording (.npz) or source file whose segments are the model's links")
-    track.add_argument("--map", help="link map from the input's segments to the model's links: a built-in name "
-                       "(xsens_to_human, plugin_gait_to_human, human_to_icub) or a .toml file")
-    track.add_argument("--calibration", metavar="FILE", help="a static trial to calibrate the map's offsets on")
-    track.add_argument("--calibration-frame", type=frame_argument, default=None,
-                       help="the frame holding the reference pose: an index, or 'rest' for a BVH rest pose "
-                            "(default: the map's own choice, else 0)")
+    add_map_arguments(track)
     track.add_argument("--model", default="human66", choices=("human66", "human48", "icub"))
+    track.add_argument("--urdf", metavar="FILE", help="track with this URDF of --model instead, e.g. the model.urdf "
+                       "`torchik diagnose` writes (--model still names the tracked links)")
+    track.add_argument("--sensor-calibration", metavar="JSON", help="undo the sensor effects (offsets, biases, delays, "
+                       "drift) in the calibration.json `torchik diagnose` wrote for this session, after --map")
     track.add_argument("--duration", type=float, default=10.0, help="scenario length in seconds (default 10)")
     track.add_argument("--rate", type=float, default=100.0, help="scenario rate in Hz (default 100)")
     track.add_argument("--seed", type=int, default=0)
@@ -294,9 +314,10 @@ def build_parser() -> argparse.ArgumentParser:
     convert.set_defaults(run=_convert)
 
     # sub-commands defined next to what they run: each module's add_parser(sub) registers its own
-    from . import bench, experiment, retarget
+    from . import bench, cohort, experiment, retarget
+    from .diagnosis import command as diagnose
 
-    for module in (bench, experiment, retarget):
+    for module in (bench, experiment, retarget, cohort, diagnose):
         module.add_parser(sub)
     return parser
 

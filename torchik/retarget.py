@@ -28,7 +28,7 @@ import torch
 from . import so3
 from .baselines import WholeBodyIK
 from .errors import InputError
-from .cli import frame_argument
+from .cli import add_map_arguments
 from .experiment import human_to_icub, link_motion
 from .io.maps import apply_map, calibrate, load_map
 from .io.recording import Recording
@@ -210,11 +210,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                                           "any skeleton with --map")
     parser.add_argument("--to", required=True, choices=("icub",), help="the robot: icub")
     parser.add_argument("--out", required=True, metavar="NPZ", help="the iCub trajectories to write (.npz)")
-    parser.add_argument("--map", help="link map from the recording's segments to the human models' links "
-                                      "(e.g. bandai_to_human, cmu_to_human, plugin_gait_to_human)")
-    parser.add_argument("--calibration", metavar="FILE", help="a static trial to calibrate the map's offsets on")
-    parser.add_argument("--calibration-frame", type=frame_argument, default=None,
-                        help="the frame holding the map's reference pose: an index or 'rest'")
+    add_map_arguments(parser, "the human models' links")
     parser.add_argument("--rate", type=float, default=100.0,
                         help="output rate in Hz, 50 or more (default 100); the recording is resampled to it")
     parser.add_argument("--gain", type=float, default=20.0, help="K of the tracker, 1/s (default 20)")

@@ -1,0 +1,202 @@
+"""The diagnosis written out: a markdown report with figures, a calibration file, the augmented URDF
+and a rerun recording of the residuals before and after.
+
+    DIR/report.md          what was found, its parameters with standard errors, errors before and
+                           after each effect, per link and overall, and where the residual sits
+    DIR/errors.png         MNTE and angular-velocity RMSE per link, before and after
+    DIR/residual.png       the orientation residual's angle over time on the links that carried most
+    DIR/calibration.json   the measurement effects (calibration.py; `torchik track --sensor-calibration`)
+    DIR/model.urdf         the URDF with the model effects added (only when there are some;
+                           `torchik track --urdf`)
+    DIR/residuals.rrd      rerun: residual angle and gyro disagreement per link, before and after
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .analysis import Analysis
+from .effect import SIGNIFICANT
+from .loop import Diagnosis
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _angle(analysis: Analysis, b: int) -> np.ndarray:
+    """[T,L] the orientation residual's angle in degrees (NaN where a sample is missing)."""
+    angle = torch.asin(analysis.r[:, b].norm(dim=-1).clamp(max=1.0)) * 180 / math.pi
+    return torch.where(analysis.valid[:, b], angle, torch.nan).numpy()
+
+
+def errors_figure(d: Diagnosis, path: Path, title: str = "") -> Path:
+    plt = _pyplot()
+    before, after = d.before, d.after
+    x = np.arange(len(d.links))
+    fig, axes = plt.subplots(2, 1, figsize=(10, 5.5), sharex=True)
+    for ax, name, label in ((axes[0], "mnte", "MNTE (1 - cos)"), (axes[1], "rmse", "angular velocity RMSE (rad/s)")):
+        ax.bar(x - 0.2, getattr(before, name), 0.4, label="before", color="tab:red")
+        ax.bar(x + 0.2, getattr(after, name), 0.4, label="after", color="tab:blue")
+        ax.set_ylabel(label)
+        ax.set_yscale("log")
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].legend()
+    axes[0].set_title(title or "tracking error per link, before and after the effects found")
+    axes[1].set_xticks(x, d.links, rotation=60, ha="right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def residual_figure(d: Diagnosis, path: Path, top: int = 4, title: str = "") -> Path:
+    plt = _pyplot()
+    (a0, b0), (a1, b1) = d.first, d.last
+    before, after = _angle(a0, b0), _angle(a1, b1)
+    order = np.argsort(-np.nan_to_num(np.nanmean(before, 0)))[:top]
+    fig, axes = plt.subplots(len(order), 1, figsize=(10, 1.8 * len(order) + 0.6), sharex=True, squeeze=False)
+    t = a0.time.numpy()
+    for ax, i in zip(axes[:, 0], order):
+        ax.plot(t, before[:, i], color="tab:red", lw=0.8, label="before")
+        ax.plot(t, after[:, i], color="tab:blue", lw=0.8, label="after")
+        ax.set_ylabel(f"{d.links[i]}\n(deg)", fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(loc="upper right")
+    axes[0, 0].set_title(title or "orientation residual on the links that carried most")
+    axes[-1, 0].set_xlabel("time (s)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.3g}" if math.isfinite(x) else "-"
+
+
+def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]) -> str:
+    before, after = d.before.overall, d.after.overall
+    lines = [f"# Diagnosis of {source}", "", f"Model: {model_name}; {len(d.links)} tracked links; "
+             f"{len(d.original.time)} frames at {d.original.frame_rate:.1f} Hz.", ""]
+    if d.effects:
+        lines += ["## Effects found (in the order added)", "",
+                  "| # | effect | parameters (± standard error) | score | MNTE before → after | RMSE before → after (rad/s) |",
+                  "|---|---|---|---|---|---|"]
+        for k, step in enumerate(d.steps, 1):
+            e = step.effect
+            params = "; ".join(f"{name} = {_json(v)} ± {_json(e.stderr.get(name, e.stderr.get(name + '_rad')))}"
+                               for name, v in e.params.items() if name not in ("identified", "first_joint", "t0"))
+            lines.append(f"| {k} | {e.summary()} | {params} | {e.score:.0f} | {_fmt(step.before.overall['mnte'])} → "
+                         f"{_fmt(step.after.overall['mnte'])} | {_fmt(step.before.overall['rmse'])} → {_fmt(step.after.overall['rmse'])} |")
+        notes = [f"- {e.kind} at {e.target}: {e.notes}" for e in d.effects if e.notes]
+        if notes:
+            lines += ["", "Notes:", *notes]
+    else:
+        lines += ["## No effect found", "", "No candidate explains the residual significantly better than noise."]
+    lines += ["", "## Errors", "", "| | MNTE | angular velocity RMSE (rad/s) | base velocity RMSE (m/s) |", "|---|---|---|---|",
+              f"| before | {_fmt(before['mnte'])} | {_fmt(before['rmse'])} | {_fmt(before['base_velocity_rmse'])} |",
+              f"| after | {_fmt(after['mnte'])} | {_fmt(after['rmse'])} | {_fmt(after['base_velocity_rmse'])} |", ""]
+    lines += ["Per link (before → after):", "", "| link | MNTE | RMSE (rad/s) |", "|---|---|---|"]
+    for i, link in enumerate(d.links):
+        lines.append(f"| {link} | {_fmt(d.before.mnte[i])} → {_fmt(d.after.mnte[i])} | "
+                     f"{_fmt(d.before.rmse[i])} → {_fmt(d.after.rmse[i])} |")
+    if d.rejected:
+        lines += ["", "## Significant but not kept", ""]
+        lines += [f"- {e.kind} at {e.target} (score {e.score:.0f}): {e.notes}" for e in d.rejected]
+    lines += ["", "## What remains", ""]
+    if not d.complete:
+        lines.append(f"The loop stopped at its limit of effects ({len(d.steps) + sum('reverted' in e.notes for e in d.rejected)} "
+                     f"rounds) while candidates were still significant: run it again with more (--max-effects) to go on.")
+    elif d.best_rejected is not None:
+        lines.append(f"The best candidate left, {d.best_rejected.summary()}, scores {d.best_rejected.score:.1f} "
+                     f"(significant above {SIGNIFICANT:g}): no candidate explains what remains.")
+    else:
+        lines.append("No candidate is left to explain what remains.")
+    if d.unobservable:
+        lines += ["", "Not identifiable from these data (no fit was possible):", ""]
+        groups: dict[tuple[str, str], list[str]] = {}
+        for e in d.unobservable:
+            groups.setdefault((e.kind, e.notes), []).append(e.target)
+        lines += [f"- {kind} at {', '.join(targets)}: {notes}" for (kind, notes), targets in groups.items()]
+    lines += ["", "Where the residual sits (largest first):", "",
+              "| link | rms (deg) | mean in link frame (deg) | dominant axis (link) | share | corr. with ω | corr. with α "
+              "| corr. with a joint angle | band (Hz) | gyro vs orientation (rad/s) |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
+    for row in d.remaining[:8]:
+        lines.append(f"| {row['link']} | {row['rms_deg']:.2f} | {_json(row['mean_link_deg'], 2)} | "
+                     f"{_json(row['dominant_axis'], 2)} | {row['dominant_share']:.2f} | {row['corr_omega']:.2f} | "
+                     f"{row['corr_alpha']:.2f} | {row['corr_joint']:.2f} ({row['joint'] or '-'}) | "
+                     f"{row['band_hz'][0]:g}–{row['band_hz'][1]:g} | {row['gyro_rms']:.3f} |")
+    if d.limits:
+        lines += ["", "Joints at a limit: " + ", ".join(f"{j['joint']} ({j['side']}, {100 * j['fraction']:.0f} % of the time)"
+                                                     for j in d.limits)]
+    lines += [""] + [f"![{name}]({path})" for name, path in figures.items()] + [""]
+    return "\n".join(lines)
+
+
+def _json(value, digits: int = 4) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_json(v, digits) for v in value) + "]"
+    if isinstance(value, float):
+        return f"{value:.{digits}g}"
+    return str(value)
+
+
+def write_rrd(d: Diagnosis, path: Path) -> Path:
+    """The residual angle (deg) and the gyro's disagreement |e| (rad/s) per link, before and after."""
+    import uuid
+
+    import rerun as rr
+
+    rec = rr.RecordingStream("torchik-diagnosis", recording_id=uuid.uuid4())
+    rec.save(str(path))
+    for when, (analysis, b) in (("before", d.first), ("after", d.last)):
+        time = rr.TimeColumn("time", duration=analysis.time.numpy())
+        angle = _angle(analysis, b)
+        gyro = analysis.e[:, b].norm(dim=-1).numpy()
+        for i, link in enumerate(d.links):
+            rec.send_columns(f"residual/orientation_deg/{link}/{when}", [time], rr.Scalars.columns(scalars=angle[:, i]))
+            rec.send_columns(f"residual/gyro_rad_s/{link}/{when}", [time], rr.Scalars.columns(scalars=gyro[:, i]))
+    rec.flush()
+    return path
+
+
+def write(d: Diagnosis, out: str | Path, source: str, model_name: str, rrd: bool = True) -> dict[str, Path]:
+    """Write the report of module docstring into `out` (made if missing). Returns the paths written."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = dict(errors=errors_figure(d, out / "errors.png"), residual=residual_figure(d, out / "residual.png"))
+    calibration = out / "calibration.json"
+    calibration.write_text(json.dumps(dict(d.calibration(), source=source, model=model_name), indent=2) + "\n")
+    paths["calibration"] = calibration
+    if any(e.model_effect for e in d.effects):
+        paths["urdf"] = out / "model.urdf"
+        paths["urdf"].write_text(d.urdf)
+    if rrd:
+        paths["rrd"] = write_rrd(d, out / "residuals.rrd")
+    summary = dict(source=source, model=model_name, effects=[e.to_json() for e in d.effects],
+                   steps=[dict(effect=s.effect.kind, target=s.effect.target, before=s.before.overall, after=s.after.overall)
+                          for s in d.steps],
+                   before=d.before.to_json(), after=d.after.to_json(),
+                   best_rejected=None if d.best_rejected is None else d.best_rejected.to_json(),
+                   rejected=[e.to_json() for e in d.rejected], unobservable=[e.to_json() for e in d.unobservable],
+                   remaining=d.remaining, limits=d.limits, complete=d.complete)
+    paths["json"] = out / "diagnosis.json"
+    paths["json"].write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    md = markdown(d, source, model_name, {"errors per link": "errors.png", "residual over time": "residual.png"})
+    paths["report"] = out / "report.md"
+    paths["report"].write_text(md)
+    return paths
