@@ -136,12 +136,10 @@ def _track(args: argparse.Namespace) -> int:
         recording = read_any(args.input)
         source = args.input
         if args.map:
-            from .io import apply_map, calibrate, load_map
+            from .io import map_recording
 
-            link_map = load_map(args.map)
-            if args.calibration:
-                link_map = calibrate(link_map, read_any(args.calibration), model, args.calibration_frame)
-            recording = apply_map(recording, link_map, model, args.calibration_frame)
+            static = read_any(args.calibration) if args.calibration else None
+            recording, link_map = map_recording(recording, args.map, model, static, args.calibration_frame)
             links = recording.links
             source += f" through map {link_map.name!r}"
     elif args.map or args.calibration:

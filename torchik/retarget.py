@@ -30,7 +30,7 @@ from .baselines import WholeBodyIK
 from .errors import InputError
 from .cli import add_map_arguments
 from .experiment import human_to_icub, link_motion
-from .io.maps import apply_map, calibrate, load_map
+from .io.maps import map_recording
 from .io.recording import Recording
 from .kinematics import KinematicModel
 from .limits import LimitSettings
@@ -159,11 +159,8 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.recording}: no such file")
     recording = read_any(args.recording)
     if args.map:
-        human = load_model("human66")
-        link_map = load_map(args.map)
-        if args.calibration:
-            link_map = calibrate(link_map, read_any(args.calibration), human, args.calibration_frame)
-        recording = apply_map(recording, link_map, human, args.calibration_frame)
+        static = read_any(args.calibration) if args.calibration else None
+        recording, _ = map_recording(recording, args.map, load_model("human66"), static, args.calibration_frame)
     elif args.calibration:
         raise InputError("--calibration calibrates a --map; give the map too")
     threads = torch.get_num_threads()

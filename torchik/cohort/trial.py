@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..io.maps import apply_map, calibrate, load_map
+from ..io.maps import map_recording
 from ..io.recording import Recording
 from ..kinematics import KinematicModel
 from ..metrics import summary
@@ -114,11 +114,8 @@ def mapped(recording: Recording, spec: TrialSpec, model: KinematicModel) -> Reco
     spec's static trial when it names one (else on the recording, for a map that calibrates)."""
     from ..cli import read_any
 
-    link_map = load_map(spec.map)
     static = read_any(spec.calibration) if spec.calibration else None
-    if static is not None:
-        link_map = calibrate(link_map, static, model, spec.calibration_frame)
-    return apply_map(recording, link_map, model, spec.calibration_frame)
+    return map_recording(recording, spec.map, model, static, spec.calibration_frame)[0]
 
 
 @functools.lru_cache(maxsize=64)

@@ -95,14 +95,11 @@ def _run(args: argparse.Namespace) -> int:
     model = KinematicModel.from_urdf(urdf, name=f"Human{args.model[-2:]}" + ("+" if args.urdf else ""))
     recording = read_any(args.recording)
     if args.map:
-        from ..io import apply_map, calibrate, load_map
+        from ..io import map_recording
         from ..models import load_model
 
-        reference = load_model(args.model)
-        link_map = load_map(args.map)
         static = read_any(args.calibration) if args.calibration else None
-        link_map = calibrate(link_map, static, reference, args.calibration_frame) if static else link_map
-        recording = apply_map(recording, link_map, reference, args.calibration_frame)
+        recording, _ = map_recording(recording, args.map, load_model(args.model), static, args.calibration_frame)
     links = [name for name in TRACKED_LINKS[args.model] if name in recording.links]
     if model.base_link not in links:
         raise InputError(f"{args.recording}: no {model.base_link} among its segments {list(recording.links)}; "

@@ -4,7 +4,7 @@ from .recording import Recording, RecordingError, angular_velocity_from_orientat
 from .mvnx import read_mvnx
 from .bvh import read_bvh
 from .c3d import read_c3d
-from .maps import LinkMap, apply_map, calibrate, load_map
+from .maps import LinkMap, apply_map, calibrate, load_map, map_recording
 
-__all__ = ["Recording", "RecordingError", "load_recording", "save_recording", "read_mvnx", "read_bvh", "read_c3d", "LinkMap", "load_map", "apply_map", "calibrate",
+__all__ = ["Recording", "RecordingError", "load_recording", "save_recording", "read_mvnx", "read_bvh", "read_c3d", "LinkMap", "load_map", "apply_map", "calibrate", "map_recording",
            "angular_velocity_from_orientations"]

@@ -199,3 +199,14 @@ def apply_map(recording: Recording, link_map: LinkMap, model: KinematicModel | N
                      angular_velocity=recording.angular_velocity[:, ids], base_link=link_map.base_link,
                      base_position=recording.base_position, base_linear_velocity=recording.base_linear_velocity,
                      meta=meta)
+
+
+def map_recording(recording: Recording, map_name: str | Path, model: KinematicModel, static: Recording | None = None,
+                  calibration_frame: int | str | None = None) -> tuple[Recording, LinkMap]:
+    """A recording through a map (a built-in name or a .toml file) into `model`'s links: the map's
+    offsets calibrated on `static`, a static trial, when given (else on the recording itself,
+    for a map that calibrates). Returns the mapped recording and the map used."""
+    link_map = load_map(map_name)
+    if static is not None:
+        link_map = calibrate(link_map, static, model, calibration_frame)
+    return apply_map(recording, link_map, model, calibration_frame), link_map
