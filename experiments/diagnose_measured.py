@@ -31,7 +31,7 @@ import torch
 from torchik.cli import read_any
 from torchik.diagnosis.loop import Diagnosis, diagnose
 from torchik.diagnosis.report import errors_figure, write
-from torchik.io import apply_map, calibrate, load_map
+from torchik.io import map_recording
 from torchik.kinematics import KinematicModel
 from torchik.models import TRACKED_LINKS, human_urdf
 
@@ -73,10 +73,8 @@ def recording_of(source: Source, model: KinematicModel):
     """The recording in the model's links (mapped and calibrated when the source needs it)."""
     recording = read_any(str(DATA / source.file))
     if source.map:
-        link_map = load_map(source.map)
-        if source.static:
-            link_map = calibrate(link_map, read_any(str(DATA / source.static)), model, source.frame)
-        recording = apply_map(recording, link_map, model, source.frame)
+        static = read_any(str(DATA / source.static)) if source.static else None
+        recording, _ = map_recording(recording, source.map, model, static, source.frame)
     return recording
 
 

@@ -12,21 +12,26 @@ Properties checked, per effect, over the 10 seeds:
 - the first effect the loop adds is the injected one, at the injected link or joint (>= 9 of 10);
 - its parameters are recovered within the effect's tolerance (>= 9 of 10);
 - on the affected links, the error after (MNTE and angular-velocity RMSE; the base velocity for a
-  position offset) is at most max(before / 10, 2 x the noise floor) (>= 9 of 10).
+  position offset) is at most max(before / 10, 2 x the noise floor) (>= 9 of 10), both against
+  the recording the loop corrected and, for the measurement effects but the misalignment (see
+  AGAINST_TRUTH), the final estimate against the recording before the injection (so that a
+  correction cannot pass by moving the data).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
 import numpy as np
 import pytest
+import torch
 
 from torchik.diagnosis.calibration import apply_calibration
 from torchik.diagnosis.gyro import GyroBias, GyroScale, StreamDelay
 from torchik.diagnosis.joints import JointLimit, MissingDof
-from torchik.diagnosis.loop import diagnose
+from torchik.diagnosis.loop import diagnose, errors
 from torchik.diagnosis.placement import HeadingDrift, Misalignment, SensorDelay
 from torchik.diagnosis.position import PositionOffset
 from torchik.diagnosis.synthetic import beyond_limit, recording_of, with_missing_dof
@@ -136,12 +141,37 @@ def diagnose_cases(only=None) -> dict[str, list]:
     for (kind, truth, affected), result in zip(cases, results):
         out.setdefault(kind, []).append((truth, affected, result))
     out["floor"] = out["clean"]
+    out["truth"] = clean
     return out
 
 
-def _error_ok(result, floor, affected, position=False) -> bool:
-    """After <= max(before / 10, 2 x floor) on every affected link (both MNTE and RMSE)."""
-    before, after, base = result.before, result.after, floor.after
+# Measurement effects whose final estimate is also held against the recording before the
+# injection. Not the misalignment: on the forearm the data determine two of its three directions
+# (its `identified` rows, checked to 1 degree above: 0.01 to 0.22 degrees on these seeds); the
+# third, which the joints absorb, is left at zero, and the 0.4 to 4.7 degrees the seeds put there
+# keep the estimate off the truth (1 - cos of that angle, as measured) in 7 of 10.
+AGAINST_TRUTH = tuple(kind for kind in MEASUREMENT if kind != "misalignment")
+
+
+def _against_truth(result, truth):
+    """The errors of the loop's final estimate against `truth`, the recording before the effect
+    was injected (same noise): what the loop's own `after`, measured against the recording it
+    corrected, cannot show."""
+    analysis, b = result.last
+    ids = [truth.links.index(name) for name in analysis.links]
+    as_tensor = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=analysis.R_m.dtype)  # noqa: E731
+    R_m, w_m, v_m = analysis.R_m.clone(), analysis.w_m.clone(), analysis.v_m.clone()
+    R_m[:, b], w_m[:, b] = as_tensor(truth.orientation[:, ids]), as_tensor(truth.angular_velocity[:, ids])
+    v_m[:, b] = as_tensor(truth.base_linear_velocity)
+    return errors(dataclasses.replace(analysis, R_m=R_m, w_m=w_m, v_m=v_m), b)
+
+
+def _error_ok(result, floor, affected, position=False, truth=None) -> bool:
+    """After <= max(before / 10, 2 x floor) on every affected link (both MNTE and RMSE); with
+    `truth` (the recording before the injection), the final estimate measured against it, too."""
+    if truth is not None and not _error_ok(result, floor, affected, position):
+        return False
+    before, after, base = result.before, result.after if truth is None else _against_truth(result, truth), floor.after
     if position:
         return after.base_velocity <= max(before.base_velocity / 10, 2 * base.base_velocity)
     for link in affected:
@@ -185,7 +215,8 @@ def test_the_injected_effect_is_named_recovered_and_removed(runs, kind):
             continue
         named += 1
         recovered += _param_ok(kind, truth, effects[0])
-        reduced += _error_ok(result, runs["floor"][seed][2], affected, kind == "position_offset")
+        reduced += _error_ok(result, runs["floor"][seed][2], affected, kind == "position_offset",
+                             runs["truth"][seed] if kind in AGAINST_TRUTH else None)
     assert named >= 9, f"{kind}: named in {named} of 10"
     assert recovered >= 9, f"{kind}: parameters recovered in {recovered} of 10"
     assert reduced >= 9, f"{kind}: error reduced in {reduced} of 10"

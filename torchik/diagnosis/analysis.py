@@ -181,8 +181,9 @@ def analyse(model: KinematicModel, recordings: Sequence[Recording], links, traje
     w_safe = torch.where(valid[..., None], w_m, w_hat)
     r = so3.skew_vee(R_safe @ R_hat.transpose(-1, -2))
     r_link = (R_hat.transpose(-1, -2) @ r[..., None]).squeeze(-1)
-    w_fd = torch.stack([torch.from_numpy(angular_velocity_from_orientations(R_safe[:, b].numpy(), time.numpy()))
-                        for b in range(R_m.shape[1])], dim=1)
+    T, B, L = R_safe.shape[:3]  # every subject's links at once: [T,B*L,3,3]
+    w_fd = torch.from_numpy(angular_velocity_from_orientations(R_safe.reshape(T, B * L, 3, 3).numpy(),
+                                                               time.numpy())).reshape(T, B, L, 3)
     e = simpson(w_safe) - w_fd
     # a sample next to a missing one has no central difference
     near = valid & torch.cat((valid[:1], valid[:-1])) & torch.cat((valid[1:], valid[-1:]))

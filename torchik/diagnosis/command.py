@@ -96,10 +96,9 @@ def _run(args: argparse.Namespace) -> int:
     recording = read_any(args.recording)
     if args.map:
         from ..io import map_recording
-        from ..models import load_model
 
         static = read_any(args.calibration) if args.calibration else None
-        recording, _ = map_recording(recording, args.map, load_model(args.model), static, args.calibration_frame)
+        recording, _ = map_recording(recording, args.map, model, static, args.calibration_frame)
     links = [name for name in TRACKED_LINKS[args.model] if name in recording.links]
     if model.base_link not in links:
         raise InputError(f"{args.recording}: no {model.base_link} among its segments {list(recording.links)}; "
