@@ -129,29 +129,41 @@ def track_recording(model: KinematicModel, recording: Recording, links, position
                           scheme=scheme, backend=backend)
     trajectory, interrupted = run_interruptible(tracker, sequence, progress=progress)
     done = len(trajectory.time)
-    errors = tracking_errors(model, trajectory, sequence, links, scheme)
-    known = (torch.isfinite(sequence.rotation[:done, 0]).flatten(-3).all(-1)
-             & torch.isfinite(sequence.angular_velocity[:done, 0]).flatten(-2).all(-1))  # [T]
+    trajectory.diagnostics.update(tracking_errors(model, trajectory, sequence, links, scheme))
     time = trajectory.time
     d = trajectory.diagnostics
     report = dict(
         model=model.name, links=len(links), frames=done, duration_s=float(time[-1] - time[0]),
         rate_hz=1.0 / dt, scheme=scheme, backend=backend, gains=dict(position=position_gain, orientation=orientation_gain),
         transient_s=transient,
-        mnte=summary(errors["mnte"][known, 0], time[known], transient) if bool(known.any()) else None,
-        angular_velocity_rmse=summary(errors["rmse"][known, 0], time[known], transient) if bool(known.any()) else None,
+        **tracking_statistics(trajectory, sequence, recording, model, transient),
         step_time_ms={k: v * 1e3 for k, v in summary(d["step_time"], time, 0.0).items()},
         qp_fallbacks=int((~d["solved"]).sum()), dropped_targets=int(d["dropped"].sum()),
         active_constraints_mean=float(d["active_constraints"].double().mean()), interrupted=interrupted,
     )
+    return trajectory, report
+
+
+def tracking_statistics(trajectory: Trajectory, sequence: TargetSequence, recording: Recording,
+                        model: KinematicModel, transient: float) -> dict:
+    """What `torchik track` reports of subject 0's accuracy, after `transient` seconds and over the
+    frames whose targets are all known: mnte and angular_velocity_rmse (`metrics.summary` dicts,
+    None when no frame is known) and, when the recording carries the model's joint angles,
+    joint_error_rad (max, rms). trajectory: [T,1,...] with the mnte and rmse diagnostics
+    (`tracking_errors`); sequence: its targets (at least T frames)."""
+    done, time, d = len(trajectory.time), trajectory.time, trajectory.diagnostics
+    known = (torch.isfinite(sequence.rotation[:done, 0]).flatten(-3).all(-1)
+             & torch.isfinite(sequence.angular_velocity[:done, 0]).flatten(-2).all(-1))  # [T]
+    any_known = bool(known.any())
+    out = dict(mnte=summary(d["mnte"][known, 0], time[known], transient) if any_known else None,
+               angular_velocity_rmse=summary(d["rmse"][known, 0], time[known], transient) if any_known else None)
     if recording.joint_positions is not None and recording.joint_names == model.joint_names:
         truth = torch.from_numpy(recording.joint_positions[:done]).to(trajectory.joint_positions)
         err = (trajectory.joint_positions[:, 0] - truth).abs()
         keep = time >= time[0] + transient
         err = err[keep] if bool(keep.any()) else err
-        report["joint_error_rad"] = dict(max=float(err.max()), rms=float(err.square().mean().sqrt()))
-    trajectory.diagnostics.update(errors)
-    return trajectory, report
+        out["joint_error_rad"] = dict(max=float(err.max()), rms=float(err.square().mean().sqrt()))
+    return out
 
 
 def save_trajectory(trajectory: Trajectory, model: KinematicModel, path: str | Path) -> Path:

@@ -39,7 +39,7 @@ from ..kinematics import KinematicModel
 from ..metrics import summary
 from ..models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_model
 from ..scenarios import recording_targets
-from ..track import save_trajectory, tracking_errors
+from ..track import save_trajectory, tracking_errors, tracking_statistics
 from ..tracker import DynamicalIK, TargetSequence, Trajectory
 from .manifest import TrialSpec, human_subject
 from .plan import Batch
@@ -227,21 +227,16 @@ def trial_row(p: Prepared, trajectory: Trajectory) -> dict:
     the statistics `torchik track` reports, after the spec's transient, over the frames whose
     targets are all known; status 'failed' with the reason when the trial diverged."""
     t, d, spec = trajectory.time, trajectory.diagnostics, p.spec
-    known = (torch.isfinite(p.sequence.rotation[:, 0]).flatten(-3).all(-1)
-             & torch.isfinite(p.sequence.angular_velocity[:, 0]).flatten(-2).all(-1))  # [T]
     row = dict(trial=spec.trial, subject=spec.subject, model=spec.model, status="ok", error=None,
                frames=len(t), duration_s=float(t[-1] - t[0]), rate_hz=1.0 / p.dt,
                qp_fallbacks=int((~d["solved"]).sum()), dropped_targets=int(d["dropped"].sum()),
                step_time_ms=summary(d["step_time"], t, 0.0)["median"] * 1e3)
-    for name in ("mnte", "rmse"):
-        stats = summary(d[name][known, 0], t[known], spec.transient) if bool(known.any()) else {}
-        row.update({f"{name}_{k}": _number(stats.get(k)) for k in ("median", "p99", "max")})
-    truth = p.recording.joint_positions
-    if truth is not None and p.recording.joint_names == p.model.joint_names:
-        err = (trajectory.joint_positions[:, 0] - torch.from_numpy(truth).to(trajectory.joint_positions)).abs()
-        keep = t >= t[0] + spec.transient
-        err = err[keep] if bool(keep.any()) else err
-        row.update(joint_error_max=_number(err.max()), joint_error_rms=_number(err.square().mean().sqrt()))
+    stats = tracking_statistics(trajectory, p.sequence, p.recording, p.model, spec.transient)
+    for name, key in (("mnte", "mnte"), ("rmse", "angular_velocity_rmse")):
+        row.update({f"{name}_{k}": _number((stats[key] or {}).get(k)) for k in ("median", "p99", "max")})
+    if "joint_error_rad" in stats:
+        row.update(joint_error_max=_number(stats["joint_error_rad"]["max"]),
+                   joint_error_rms=_number(stats["joint_error_rad"]["rms"]))
     state = torch.cat((trajectory.base_position, trajectory.base_rotation.flatten(-2), trajectory.joint_positions), -1)
     bad = (~torch.isfinite(state)).flatten(1).any(-1).nonzero()
     if len(bad):
