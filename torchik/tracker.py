@@ -325,11 +325,12 @@ class DynamicalIK:
         self._state = State(p_next, R_next, s_next, nu)
         self._rotation = orthonormalize(R_next)
 
+        residual_norm = torch.cat((r_p, r_o), dim=1).norm(dim=-1)  # [B,n_p+n_o]
         diagnostics = StepDiagnostics(
             mnte=orientation_error(previous.rotation, R_hat).mean(-1) if clean.all_valid
             else self._mean_over_valid(orientation_error(previous.rotation, R_hat), clean.orientation_valid),
-            residual_norm=torch.cat((r_p, r_o), dim=1).norm(dim=-1) if clean.all_valid else torch.cat(
-                (r_p, r_o), dim=1).norm(dim=-1) * torch.cat((clean.position_valid, clean.orientation_valid), dim=1),
+            residual_norm=residual_norm if clean.all_valid else
+            residual_norm * torch.cat((clean.position_valid, clean.orientation_valid), dim=1),
             active_constraints=self._active(problem, nu),
             solved=solution.solved,
             dropped=clean.dropped,
@@ -441,8 +442,8 @@ class DynamicalIK:
             from tqdm import tqdm
 
             steps = tqdm(steps, desc="tracking", unit="step", leave=False)
-        # Steps at the nominal rate (to the rounding of the timestamps) take the nominal dt, which
-        # the step treats without per-step checks; others (jitter, gaps) their own, checked here once.
+        # Steps at the nominal rate (to the rounding of the timestamps) take the nominal dt, a float
+        # the step uses without checks or tensor arithmetic; others (jitter, gaps) their own gap.
         gaps = (time_[1:] - time_[:-1]).to(self.model.dtype)
         rounding = 64 * torch.finfo(time_.dtype).eps * float(time_.abs().max()) if T > 1 else 0.0
         nominal = [True] + ((gaps - self.dt).abs() <= rounding).tolist()
