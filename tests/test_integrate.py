@@ -30,6 +30,22 @@ def test_baumgarte_keeps_the_drift_bounded_at_the_level_the_step_implies():
     assert float((orthonormalize(R)[0].T @ orthonormalize(R)[0] - torch.eye(3, dtype=torch.float64)).abs().max()) < 1e-12
 
 
+def test_baumgarte_step_is_the_papers_law_with_its_inverse():
+    """R + dt R (S(R^T omega) + rho/2 ((R^T R)^-1 - I)) with a general inverse, on matrices off SO(3),
+    for one dt for all and for one dt per subject (rho capped at 1/dt)."""
+    g = torch.Generator().manual_seed(4)
+    R = so3.random_rotation((6,), g) + 1e-2 * torch.randn(6, 3, 3, generator=g, dtype=torch.float64)
+    omega = torch.randn(6, 3, generator=g, dtype=torch.float64)
+    eye = torch.eye(3, dtype=torch.float64)
+    for dt in (0.01, torch.tensor([[0.004], [0.01], [0.02], [0.03], [0.01], [0.05]], dtype=torch.float64)):
+        rho = torch.clamp(1.0 / torch.as_tensor(dt), max=100.0)
+        rho = rho[..., None] if rho.dim() else rho
+        dt_ = dt[..., None] if isinstance(dt, torch.Tensor) else dt
+        body = so3.hat((R.transpose(-1, -2) @ omega[..., None])[..., 0])
+        literal = R + dt_ * (R @ (body + 0.5 * rho * (torch.linalg.inv(R.transpose(-1, -2) @ R) - eye)))
+        assert (baumgarte_step(R, omega, dt, rho=100.0) - literal).abs().max() < 1e-14
+
+
 def test_without_stabilisation_the_drift_grows_without_bound():
     errors, _ = spin(lambda R, w, dt: baumgarte_step(R, w, dt, rho=0.0), 10_000)
     deciles = errors.reshape(10, -1).max(dim=1).values

@@ -60,6 +60,24 @@ def test_poses_and_jacobians_match_idyntree(model_and_urdf, batch):
     assert np.abs(out.jacobian.numpy() - J).max() <= 1e-9
 
 
+@pytest.mark.parametrize("batch", [50, 5])  # level by level on SoA, pointer jumping batch-first
+def test_rotation_only_kinematics_match_idyntree(model_and_urdf, batch):
+    """`rotations`: the link rotations iDynTree gives, and every joint's world axis equal to the
+    angular part of iDynTree's Jacobian column of that joint, for any link the joint moves."""
+    model, path, links = model_and_urdf
+    p, R, s = random_configurations(model, batch, seed=batch + 1)
+    out = model.rotations(R, s, links, joint_axes=True)
+    assert out.position is None and out.jacobian is None
+    T, J = idyntree_reference(model, path, links, p, R, s)
+    assert np.abs(out.rotation.numpy() - T[..., :3, :3]).max() <= 1e-9
+    mask = model.select(links).ancestor_mask  # [L,n]
+    moved = mask.sum(0) > 0
+    link_of_joint = mask.argmax(0)  # a link each joint moves (where it moves one)
+    columns = J[:, link_of_joint.numpy(), 3:6, 6:]  # [B,n,3,n]: joint j's row holds a link it moves
+    axes_from_jacobian = np.diagonal(columns, axis1=1, axis2=3).transpose(0, 2, 1)  # [B,n,3]
+    assert np.abs(out.joint_axes.numpy()[:, moved] - axes_from_jacobian[:, moved.numpy()]).max() <= 1e-9
+
+
 @pytest.mark.parametrize("name", MODELS)
 def test_jacobian_matches_finite_differences(name):
     """Each column of J is the link's (linear, world angular) velocity for a unit component of nu."""
@@ -97,10 +115,13 @@ def test_batch_of_different_subjects_equals_separate_calls():
     p, R, s = random_configurations(models[0], 4, seed=3)
     links = TRACKED_LINKS["human66"]
     together = stacked(p, R, s, links)
+    rotations = stacked.rotations(R, s, links, joint_axes=True)
     for b, m in enumerate(models):
-        alone = m(p[b:b + 1], R[b:b + 1], s[b:b + 1], links)
+        alone = m(p[b:b + 1], R[b:b + 1], s[b:b + 1], links, joint_axes=True)
         assert torch.allclose(together.position[b], alone.position[0], atol=1e-14)
         assert torch.allclose(together.jacobian[b], alone.jacobian[0], atol=1e-14)
+        assert torch.allclose(rotations.rotation[b], alone.rotation[0], atol=1e-14)
+        assert torch.allclose(rotations.joint_axes[b], alone.joint_axes[0], atol=1e-14)
     # the subjects really differ: the head is higher for a taller subject at the zero configuration
     p0, R0, s0 = stacked.zero_configuration(4)
     heads = stacked(p0, R0, s0, ["Head"], jacobian=False).position[:, 0, 2]

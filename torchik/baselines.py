@@ -149,6 +149,9 @@ class WholeBodyIK(InstantaneousIK):
         self._p = torch.tensor([index[n] for n in self.position_links], **long)
         self._o = torch.tensor([index[n] for n in self.orientation_links], **long)
         self._task = TaskStructure.build(model, self.orientation_links, self.position_links)
+        # as in the tracker: with every position target on the base, rotations and joint axes suffice
+        self._rotations_only = self._task.position is None and len(self.orientation_links) > 0
+        self._orientation_selection = model.select(self.orientation_links) if self.orientation_links else None
         self.tolerance, self.step_tolerance = tolerance, step_tolerance
         self.max_iterations, self.damping = max_iterations, damping
         self.backend = make_backend(backend)
@@ -174,10 +177,14 @@ class WholeBodyIK(InstantaneousIK):
             G = torch.cat((A.new_zeros(A.shape[0], 6), A), 1).expand(B, -1, -1)
         # Gauss-Newton iterations (the method, not links or subjects); the last pass only evaluates
         for iteration in range(self.max_iterations + 1):
-            kin = model(p, R, s, self._selection, jacobian_links=self._task.position,
-                        jacobian=self._task.position is not None, joint_axes=True)
-            r_p = x.position - kin.position.index_select(1, self._p)
-            r_o = orientation_residual(x.rotation, kin.rotation.index_select(1, self._o))
+            if self._rotations_only:
+                kin = model.rotations(R, s, self._orientation_selection, joint_axes=True)
+                r_p, R_hat = x.position - p.unsqueeze(1), kin.rotation
+            else:
+                kin = model(p, R, s, self._selection, jacobian_links=self._task.position,
+                            jacobian=self._task.position is not None, joint_axes=True)
+                r_p, R_hat = x.position - kin.position.index_select(1, self._p), kin.rotation.index_select(1, self._o)
+            r_o = orientation_residual(x.rotation, R_hat)
             error = torch.cat((r_p, r_o), 1).norm(dim=-1)
             converged = (error if valid is None else error * valid).amax(-1) <= self.tolerance
             active = active & ~converged
@@ -193,7 +200,7 @@ class WholeBodyIK(InstantaneousIK):
             s = s + delta[:, 6:]
             iterations += active
             active = active & (delta.abs().amax(-1) > self.step_tolerance)
-        errors = orientation_error(x.rotation, kin.rotation.index_select(1, self._o))
+        errors = orientation_error(x.rotation, R_hat)
         mnte = _mean_over(errors, None if clean.all_valid else clean.orientation_valid)
         zero = torch.zeros(B, 6 + model.n_dof, dtype=p.dtype, device=p.device)
         return IKResult(State(p, R, s, zero), iterations, converged, mnte, time.perf_counter() - began)
@@ -331,7 +338,7 @@ class PairwiseIK(InstantaneousIK):
         G = None if self._b is None else pairs.rows.expand(B, P, m, k)
         # Gauss-Newton iterations (the method, not pairs or subjects); the last pass only evaluates
         for iteration in range(self.max_iterations + 1):
-            kin = model(p, R, s, self._selection, jacobian=False, joint_axes=True)
+            kin = model.rotations(R, s, self._selection, joint_axes=True)  # pairs need no positions
             R_parent = kin.rotation[:, pairs.parent]  # [B,P,3,3]
             relative = R_parent.transpose(-1, -2) @ kin.rotation[:, pairs.child]
             residual = orientation_residual(relative_target, relative)  # [B,P,3] in the parent's frame

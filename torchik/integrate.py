@@ -20,18 +20,26 @@ def baumgarte_step(R: torch.Tensor, omega: torch.Tensor, dt: torch.Tensor | floa
     """One Euler step of Baumgarte-stabilised R_dot. R: [B,3,3]; omega: [B,3] world; dt: [B,1] or a
     float (the same for every subject) -> [B,3,3].
 
+    R_dot = R S(R^T omega) + rho/2 (R^-T - R), which is the paper's law, as R (R^T R)^-1 = R^-T;
+    the inverse transpose is the cofactor matrix over the determinant (its columns are the cross
+    products of R's columns), cheaper than a general inverse.
     The drift E = R^T R - I decays by about (1 - rho dt) per Euler step, which diverges for
     rho dt > 2: rho is capped at 1/dt (the fastest decay a step can give), so a gain tuned at
     100 Hz stays stable at 30 Hz."""
-    Rt = R.transpose(-1, -2)
-    eye = so3.identity(R.dtype, R.device)
-    body = so3.hat((Rt @ omega.unsqueeze(-1)).squeeze(-1))
+    B = R.shape[0]
+    body = (omega.unsqueeze(1) @ R @ so3.hat_basis(R.dtype, R.device)).view(B, 3, 3)  # S(R^T omega)
+    columns = _COLUMN_CYCLES.get(R.device) or _COLUMN_CYCLES.setdefault(
+        R.device, (torch.tensor([1, 2, 0], device=R.device), torch.tensor([2, 0, 1], device=R.device)))
+    cofactor = torch.linalg.cross(R.index_select(-1, columns[0]), R.index_select(-1, columns[1]), dim=-2)
+    determinant = (R * cofactor).sum((-2, -1), keepdim=True) / 3.0  # each column gives det R
+    pull = cofactor / determinant - R  # R^-T - R
     if isinstance(dt, float):
-        rho = min(rho, 1.0 / dt)
-    else:
-        rho, dt = torch.clamp(1.0 / dt, max=rho)[..., None], dt[..., None]  # [B,1,1]
-    stabiliser = 0.5 * rho * (torch.linalg.inv(Rt @ R) - eye)
-    return R + dt * (R @ (body + stabiliser))
+        return torch.add(R, torch.add(R @ body, pull, alpha=0.5 * min(rho, 1.0 / dt)), alpha=dt)
+    rho, dt = torch.clamp(1.0 / dt, max=rho)[..., None], dt[..., None]  # [B,1,1]
+    return torch.addcmul(R, dt, torch.addcmul(R @ body, 0.5 * rho, pull))
+
+
+_COLUMN_CYCLES: dict[torch.device, tuple[torch.Tensor, torch.Tensor]] = {}
 
 
 def exponential_step(R: torch.Tensor, omega: torch.Tensor, dt: torch.Tensor | float) -> torch.Tensor:
@@ -51,7 +59,7 @@ def orthonormalize(R: torch.Tensor) -> torch.Tensor:
     far from SO(3), where they would not converge, the SVD projection.
     """
     eye = so3.identity(R.dtype, R.device)
-    X = R.reshape(-1, 3, 3)
+    X = R if R.dim() == 3 else R.reshape(-1, 3, 3)
     M = X.transpose(-1, -2) @ X
     deviation = float((M - eye).abs().max()) if X.shape[0] else 0.0
     if deviation > 0.1:
@@ -67,8 +75,10 @@ def orthonormalize(R: torch.Tensor) -> torch.Tensor:
 def integrate(p: torch.Tensor, R: torch.Tensor, s: torch.Tensor, nu: torch.Tensor, dt: torch.Tensor | float,
               rotation: str = "baumgarte", rho: float = 100.0):
     """Configuration after dt. p: [B,3], R: [B,3,3], s: [B,n], nu: [B,6+n], dt: [B,1] or a float -> (p, R, s)."""
-    p_next = p + dt * nu[:, :3]
-    s_next = s + dt * nu[:, 6:]
+    if isinstance(dt, float):
+        p_next, s_next = torch.add(p, nu[:, :3], alpha=dt), torch.add(s, nu[:, 6:], alpha=dt)
+    else:
+        p_next, s_next = torch.addcmul(p, dt, nu[:, :3]), torch.addcmul(s, dt, nu[:, 6:])
     if rotation == "baumgarte":
         R_next = baumgarte_step(R, nu[:, 3:6], dt, rho)
     else:

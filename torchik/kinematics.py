@@ -53,13 +53,13 @@ class LinearLimits:
 class LinkKinematics:
     """Poses and Jacobians of a selection of links for a batch of configurations.
 
-    rotation: [B,L,3,3] link-to-world; position: [B,L,3] world;
+    rotation: [B,L,3,3] link-to-world; position: [B,L,3] world, or None (`rotations`);
     jacobian: [B,L_j,6,6+n] mixed representation, rows (linear; angular), or None if not asked;
     joint_axes: [B,n,3] every joint's axis in the world frame, or None if not asked.
     """
 
     rotation: torch.Tensor
-    position: torch.Tensor
+    position: torch.Tensor | None
     jacobian: torch.Tensor | None
     joint_axes: torch.Tensor | None = None
 
@@ -328,6 +328,22 @@ class KinematicModel:
         self._link_anchor = torch.tensor(self._link_anchor_py, **long)
         self._ancestor = torch.from_numpy(self._ancestor_np).to(dtype=dtype, device=self.device)
         self._selections: dict[tuple[str, ...], LinkSelection] = {}
+        self._set_small_batch_rotations()
+
+    def _set_small_batch_rotations(self) -> None:
+        """Batch-first constants of the rotation-only kinematics for small batches ([S,F,3,3]):
+        frames 1..F-1 then the world (frame F, the identity, its own parent in the jumps); frame 0,
+        the base, is the base rotation itself. R_local = (R_off + C) + sin S - cos C, with
+        S = R_off hat(axis) and C = R_off hat(axis)^2, zero for the world, whose angle is unused."""
+        g = self._geometry
+        first = lambda t: t.permute(3, 0, 1, 2)[:, 1:]  # noqa: E731  [F,3,3,S] -> [S,F-1,3,3]
+        S = g.offset_rotation.shape[-1]
+        world = torch.eye(3, dtype=self.dtype, device=self.device).expand(S, 1, 3, 3)
+        self._small_offset = torch.cat((first(g.offset_rotation + g.rotation_cos_term), world), 1).contiguous()
+        self._small_sin = torch.cat((first(g.rotation_sin_term), torch.zeros_like(world)), 1).contiguous()
+        self._small_cos = torch.cat((first(g.rotation_cos_term), torch.zeros_like(world)), 1).contiguous()
+        self._small_angle_index = torch.cat((self._frame_joint_t[1:], self._frame_joint_t[:1]))
+        self._joint_axes_row = self._joint_axes.transpose(1, 2)  # [n,1,3]
 
     def to(self, dtype=None, device=None) -> "KinematicModel":
         """A copy with tensors in another dtype and/or on another device."""
@@ -470,6 +486,50 @@ class KinematicModel:
 
     __call__ = forward
 
+    def rotations(self, base_rotation: torch.Tensor, joint_positions: torch.Tensor,
+                  links: Sequence[str] | LinkSelection, joint_axes: bool = False) -> LinkKinematics:
+        """World rotations of the chosen links and, optionally, every joint's world axis: all that
+        orientation targets need (no positions, no Jacobians), so less work than `forward`.
+
+        base_rotation: [B,3,3] base-to-world; joint_positions: [B,n]; links: names or a
+        `select(...)` result. Returns LinkKinematics with rotation [B,L,3,3], joint_axes [B,n,3]
+        (None unless asked), position and jacobian None.
+        """
+        B = base_rotation.shape[0] if isinstance(base_rotation, torch.Tensor) and base_rotation.dim() else -1
+        self._check("base_rotation", base_rotation, (B, 3, 3))
+        self._check("joint_positions", joint_positions, (B, self.n_dof))
+        if self.n_subjects not in (1, B):
+            raise InputError(f"this model holds {self.n_subjects} subjects; the batch has {B} rows")
+        sel = self._selection(links)
+        if B > SMALL_BATCH or not self._jumps:
+            R, _ = self._frame_poses(None, base_rotation, joint_positions)  # [F,3,3,B]
+            R_link = R.index_select(0, sel.anchor)
+            if not sel.offsets_are_identity:
+                R_link = _matmul_soa(R_link, sel.offset_rotation.expand_as(R_link))
+            axes = _matvec_soa(R.index_select(0, self._joint_frame), self._joint_axes).permute(2, 0, 1).contiguous() \
+                if joint_axes else None
+            return LinkKinematics(R_link.permute(3, 0, 1, 2).contiguous(), None, None, axes)
+        R = self._frame_rotations_small(base_rotation, joint_positions)  # [B,F+1,3,3]
+        R_link = R.index_select(1, sel.anchor)
+        if not sel.offsets_are_identity:
+            R_link = R_link @ sel.offset_rotation.permute(3, 0, 1, 2)
+        # the world axis of joint j: its frame's rotation times the axis in that frame
+        axes = (R.index_select(1, self._joint_frame) * self._joint_axes_row).sum(-1) if joint_axes else None
+        return LinkKinematics(R_link, None, None, axes)
+
+    def _frame_rotations_small(self, R_B: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+        """World rotations of every skeleton frame, then the world's identity: [B,F+1,3,3].
+
+        Pointer jumping on batch-first 3x3 rotations: a few large operations, which is what costs
+        least when the batch is small and each operation's overhead dominates."""
+        angle = s.index_select(1, self._small_angle_index)[:, :, None, None]  # [B,F,1,1]
+        R_local = torch.addcmul(torch.addcmul(self._small_offset, torch.sin(angle), self._small_sin),
+                                torch.cos(angle), self._small_cos, value=-1.0)
+        R = torch.cat((R_B.unsqueeze(1), R_local), 1)  # the base frame's offset is the identity
+        for up in self._jumps:
+            R = torch.matmul(R.index_select(1, up), R)
+        return R
+
     def _selection(self, links: Sequence[str] | LinkSelection) -> LinkSelection:
         return links if isinstance(links, LinkSelection) else self.select(links)
 
@@ -500,10 +560,12 @@ class KinematicModel:
         L = len(sel.names)
         return LinkKinematics(torch.empty(batch, L, 3, 3, **kw), torch.empty(batch, L, 3, **kw), J)
 
-    def _frame_poses(self, p_B, R_B, s) -> tuple[torch.Tensor, torch.Tensor]:
-        """World rotation [F,3,3,B] and position [F,3,B] of every skeleton frame (batch last)."""
+    def _frame_poses(self, p_B, R_B, s) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """World rotation [F,3,3,B] and position [F,3,B] of every skeleton frame (batch last);
+        rotations only (position None) when p_B is None."""
         g = self._geometry
         B = s.shape[0]
+        rotations_only = p_B is None
         if self.n_dof:
             angle = s.T.index_select(0, self._frame_joint_t) * self._frame_is_joint  # [F,B]; the base has no joint
         else:  # a single rigid body
@@ -514,17 +576,19 @@ class KinematicModel:
         R_local = (g.offset_rotation + sin * g.rotation_sin_term).addcmul_(one_minus_cos, g.rotation_cos_term)
         p_local = g.offset_position.expand(-1, -1, B)
         R_base = R_B.permute(1, 2, 0)  # [3,3,B]
-        if B <= SMALL_BATCH and self._jumps:
+        if B <= SMALL_BATCH and self._jumps and not rotations_only:
             return self._compose_by_jumping(R_local, p_local, R_base, p_B.T)
         # the base frame's offset is the identity and it has no joint, so its pose is the base pose
         R = torch.empty_like(R_local)
-        p = torch.empty_like(p_local)
+        p = None if rotations_only else torch.empty_like(p_local)
         R[0] = R_base
-        p[0] = p_B.T
+        if p is not None:
+            p[0] = p_B.T
         for start, stop, parents in self._levels:  # one step per tree level, not per link
             R_parent = R.index_select(0, parents)
             _matmul_soa(R_parent, R_local[start:stop], out=R[start:stop])
-            torch.add(p.index_select(0, parents), _matvec_soa(R_parent, p_local[start:stop]), out=p[start:stop])
+            if p is not None:
+                torch.add(p.index_select(0, parents), _matvec_soa(R_parent, p_local[start:stop]), out=p[start:stop])
         return R, p
 
     def _compose_by_jumping(self, R_local, p_local, R_base, p_base):

@@ -30,8 +30,8 @@ class LimitSettings:
 
 def _bound(gap: torch.Tensor, max_rate: float, gain: float, dt: torch.Tensor) -> torch.Tensor:
     """Largest rate towards a boundary at distance `gap` (negative outside): [...] -> [...]."""
-    smooth = max_rate * torch.tanh(gain * gap)
-    return torch.where(gap >= 0, torch.minimum(smooth, gap / dt), smooth)
+    # outside (gap < 0) the cap is 0 and the smooth bound, negative there, is the smaller
+    return torch.minimum(max_rate * torch.tanh(gain * gap), gap.clamp(min=0.0) / dt)
 
 
 def joint_velocity_bounds(s: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, settings: LimitSettings,
@@ -60,8 +60,8 @@ def velocity_bounds(s: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, s
     base: the base's bounds from `base_velocity_bounds` (computed here when not given).
     """
     gaps = torch.stack((upper - s, s - lower))  # [2,B,n]: towards the upper, towards the lower limit
-    bounds = _bound(gaps, settings.max_rate, settings.gain, dt)
-    lb_s, ub_s = torch.minimum(-bounds[1], bounds[0]), bounds[0]  # past one limit by more than the range, the way back wins
+    ub_s, towards_lower = _bound(gaps, settings.max_rate, settings.gain, dt).unbind()
+    lb_s = torch.minimum(-towards_lower, ub_s)  # past one limit by more than the range, the way back wins
     base_lb, base_ub = base if base is not None else base_velocity_bounds(s.shape[0], settings, s.dtype, s.device)
     return torch.cat((base_lb, lb_s), dim=1), torch.cat((base_ub, ub_s), dim=1)
 

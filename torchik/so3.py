@@ -21,7 +21,7 @@ def identity(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     return _IDENTITY[key]
 
 
-def _hat_basis(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+def hat_basis(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     """[3,9]: row i is hat(e_i) flattened, so that hat(w).flatten() = w @ basis (exact: one term each)."""
     key = (dtype, device)
     if key not in _HAT_BASIS:
@@ -38,7 +38,7 @@ def hat(w: torch.Tensor) -> torch.Tensor:
 
     w: [..., 3] -> [..., 3, 3]
     """
-    return (w @ _hat_basis(w.dtype, w.device)).reshape(w.shape[:-1] + (3, 3))
+    return (w @ hat_basis(w.dtype, w.device)).reshape(w.shape[:-1] + (3, 3))
 
 
 def vee(S: torch.Tensor) -> torch.Tensor:
@@ -73,12 +73,12 @@ def exp(w: torch.Tensor) -> torch.Tensor:
 
     w: [..., 3] -> [..., 3, 3]
     """
-    theta = (w * w).sum(-1, keepdim=True).unsqueeze(-1).sqrt()
+    theta = torch.linalg.vector_norm(w, dim=-1, keepdim=True).unsqueeze(-1)
     # sin(t)/t = sinc(t/pi) and (1 - cos t)/t^2 = sinc(t/2pi)^2 / 2, both exact at t = 0
-    a = torch.sinc(theta / torch.pi)
-    b = 0.5 * torch.sinc(theta / (2 * torch.pi)).square()
+    a = torch.sinc(theta * (1.0 / torch.pi))
+    b = torch.sinc(theta * (0.5 / torch.pi)).square()
     K = hat(w)
-    return identity(w.dtype, w.device) + a * K + b * (K @ K)
+    return torch.addcmul(torch.addcmul(identity(w.dtype, w.device), a, K), b, K @ K, value=0.5)
 
 
 def axis_angle(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:

@@ -1,20 +1,21 @@
 """The tracking task's normal equations, assembled from the tree's structure.
 
 The step's objective ||v* - J nu||^2 + lambda ||nu||^2 needs H = J^T W J + lambda I and
-g = -J^T W v*. For orientation targets the rows of J are known in closed form: target t's angular
-velocity is omega_B + sum_j M_tj a_j s_dot_j, with a_j joint j's world axis and M_tj = 1 when
-joint j moves target t. So, with target weights w (1, or 0 for a dropped target):
+g = -J^T W v*. For the paper's targets the rows of J are known in closed form. Give every
+coordinate i of nu a direction phi_i: e_1..e_3 for the base's linear velocity, e_1..e_3 for its
+angular velocity, joint j's world axis a_j for its rate. A target then sees nu through the
+coordinates that move it, M_ti = 1 (a position target on the base link: the three linear ones;
+an orientation target: the three angular ones and the joints between it and the base), as
+sum_i M_ti phi_i nu_i: the base's linear velocity, or omega_B + sum_j M_tj a_j s_dot_j. So, with
+target weights w (1, or 0 for a dropped target):
 
-    H[omega, omega] = (sum_t w_t) I
-    H[omega, j]     = (sum_t w_t M_tj) a_j
-    H[j, k]         = (sum_t w_t M_tj M_tk) (a_j . a_k)          (a count times a dot product)
-    g[omega]        = -sum_t w_t v*_t
-    g[j]            = -a_j . (sum_t w_t M_tj v*_t)
+    H_ik = (sum_t w_t M_ti M_tk) (phi_i . phi_k) + lambda delta_ik     (a count times a dot product)
+    g_i  = -phi_i . (sum_t w_t M_ti v*_t)
 
 Only the joints' world axes are needed, never the [B,n_o,3,6+n] Jacobian itself, which at a
-large batch costs more to build and multiply than the rest of the step. Position targets (few:
-the base, perhaps hands) add their dense J_p^T W J_p; one on the base link has J_p = (I 0 0) and
-adds (sum w) I to H's first block, so the step computes no Jacobian for it.
+large batch costs more to build and multiply than the rest of the step, and at a small batch the
+whole of H is three operations. Position targets off the base (hands, say) add their dense
+J_p^T W J_p from their Jacobians.
 """
 
 from __future__ import annotations
@@ -28,40 +29,46 @@ from .kinematics import KinematicModel, LinkSelection
 
 @dataclass(frozen=True)
 class TaskStructure:
-    """Which joints move which targets, compiled once for a model and target links.
+    """Which coordinates of nu move which targets, compiled once for a model and target links.
 
-    orientation_mask: [n_o,n] M; orientation_pairs: [n,n] M^T M (targets moved by both joints);
-    orientation_columns: [n] M^T 1; position: the selection of the position links off the base,
-    whose Jacobians the equations need (None when every position target is on the base link);
-    on_base: [n_p] bool, position targets on the base link; all_on_base: every one is.
+    target_mask: [n_p+n_o,N] M, position targets then orientation targets, N = 6 + n (a position
+    target off the base link has a zero row: its Jacobian carries it); target_pairs: [N,N] M^T M;
+    base_directions: [6,3] phi of the base's coordinates; position: the selection of the position links off the
+    base, whose Jacobians the equations need (None when every position target is on the base
+    link); on_base: [n_p] bool, position targets on the base link; all_on_base: every one is.
     """
 
-    orientation_mask: torch.Tensor
-    orientation_pairs: torch.Tensor
-    orientation_columns: torch.Tensor
+    target_mask: torch.Tensor
+    target_pairs: torch.Tensor
+    base_directions: torch.Tensor
     position: LinkSelection | None
     on_base: torch.Tensor
     all_on_base: bool
-    _diagonals: dict = field(default_factory=dict, compare=False, repr=False)
+    _damping: dict = field(default_factory=dict, compare=False, repr=False)
 
     @classmethod
     def build(cls, model: KinematicModel, orientation_links, position_links) -> "TaskStructure":
-        M = model.select(tuple(orientation_links)).ancestor_mask if len(orientation_links) else \
-            torch.zeros(0, model.n_dof, dtype=model.dtype, device=model.device)
+        kw = dict(dtype=model.dtype, device=model.device)
+        M_o = model.select(tuple(orientation_links)).ancestor_mask if len(orientation_links) else \
+            torch.zeros(0, model.n_dof, **kw)
         on_base = torch.tensor([name == model.base_link for name in position_links], dtype=torch.bool,
                                device=model.device)
+        n_p, n_o, N = len(position_links), len(orientation_links), 6 + model.n_dof
+        M = torch.zeros(n_p + n_o, N, **kw)
+        M[:n_p, 0:3] = on_base.to(model.dtype)[:, None]
+        M[n_p:, 3:6] = 1.0
+        M[n_p:, 6:] = M_o
+        eye = torch.eye(3, **kw)
         off_base = tuple(name for name in position_links if name != model.base_link)
-        return cls(M, M.T @ M, M.sum(0), model.select(off_base) if off_base else None, on_base, bool(on_base.all()))
+        return cls(M, M.T @ M, torch.cat((eye, eye)), model.select(off_base) if off_base else None,
+                   on_base, bool(on_base.all()))
 
-    def diagonal(self, N: int, damping: float, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
-        """H's diagonal with every target weighted 1: [N] = (targets on the base (x3), orientation
-        targets (x3), 0 per joint) + damping; the joints' share of it is added with their pairs."""
-        key = (N, damping, dtype, torch.device(device))
-        if key not in self._diagonals:
-            counts = torch.zeros(N, dtype=dtype, device=device)
-            counts[0:3], counts[3:6] = float(self.on_base.sum()), float(self.orientation_mask.shape[0])
-            self._diagonals[key] = counts + damping
-        return self._diagonals[key]
+    def damping_matrix(self, damping: float) -> torch.Tensor:
+        """lambda I [N,N], made once per value (the step adds H's other terms to it)."""
+        if damping not in self._damping:
+            N = self.target_pairs.shape[0]
+            self._damping[damping] = damping * torch.eye(N, dtype=self.target_pairs.dtype, device=self.target_pairs.device)
+        return self._damping[damping]
 
 
 def normal_equations(structure: TaskStructure, joint_axes: torch.Tensor, position_jacobian: torch.Tensor | None,
@@ -77,34 +84,20 @@ def normal_equations(structure: TaskStructure, joint_axes: torch.Tensor, positio
     w_position [B,n_p], w_orientation [B,n_o]: target weights (None: all 1).
     hessian: False to skip H (returned as None) when a structured solver builds its own.
     """
-    B, n = joint_axes.shape[0], joint_axes.shape[1]
-    N = 6 + n
-    M = structure.orientation_mask
-    kw = dict(dtype=joint_axes.dtype, device=joint_axes.device)
-    # g = -(sum of the base's position targets' v*, sum of the orientation v*, a_j . (M^T v*)_j),
-    # and H's diagonal (the target counts on the base blocks, plus damping) as one vector each
-    weighted_o = v_orientation if w_orientation is None else w_orientation[..., None] * v_orientation
-    weighted_p = v_position if w_position is None else w_position[..., None] * v_position
-    on_base = weighted_p if structure.all_on_base else weighted_p[:, structure.on_base]
-    g = -torch.cat((on_base.sum(1), weighted_o.sum(1), (joint_axes * (M.T @ weighted_o)).sum(-1)), dim=1)
+    B = joint_axes.shape[0]
+    M = structure.target_mask
+    phi = torch.cat((structure.base_directions.expand(B, -1, -1), joint_axes), 1)  # [B,N,3]
+    v = torch.cat((v_position, v_orientation), 1)  # [B,n_t,3]
+    weighted = w_position is not None or w_orientation is not None
+    if weighted:
+        w = torch.cat((v_position.new_ones(v_position.shape[:2]) if w_position is None else w_position,
+                       v_orientation.new_ones(v_orientation.shape[:2]) if w_orientation is None else w_orientation), 1)
+        v = w[..., None] * v
+    g = -(phi * (M.T @ v)).sum(-1)
     H = None
     if hessian:
-        if w_position is None and w_orientation is None:
-            diagonal = structure.diagonal(N, damping, **kw)  # [N], made once
-        else:
-            count_p = on_base.new_full((B, 1), float(on_base.shape[1])) if w_position is None else \
-                w_position[:, structure.on_base].sum(-1, keepdim=True)
-            count_o = weighted_o.new_full((B, 1), float(M.shape[0])) if w_orientation is None else \
-                w_orientation.sum(-1, keepdim=True)
-            diagonal = torch.cat((count_p.expand(B, 3), count_o.expand(B, 3), weighted_o.new_zeros(B, n)), dim=1) + damping
-        columns = structure.orientation_columns if w_orientation is None else w_orientation @ M  # [n] or [B,n]
-        pairs = structure.orientation_pairs if w_orientation is None else (M.T * w_orientation[:, None, :]) @ M
-        coupling = columns[..., None] * joint_axes  # [B,n,3]: H[joint j, omega] = (targets j moves) a_j
-        H = torch.zeros(B, N, N, **kw)
-        H.diagonal(dim1=1, dim2=2).copy_(diagonal)
-        H[:, 6:, 3:6] = coupling
-        H[:, 3:6, 6:] = coupling.transpose(1, 2)
-        H[:, 6:, 6:] += pairs * (joint_axes @ joint_axes.transpose(1, 2))
+        pairs = (M.T * w[:, None, :]) @ M if weighted else structure.target_pairs  # [B,N,N] or [N,N]
+        H = torch.addcmul(structure.damping_matrix(damping), pairs, phi @ phi.transpose(1, 2))
     if structure.position is not None:  # position targets off the base: their dense J_p^T W J_p
         names = len(structure.position.names)
         if position_jacobian is None or position_jacobian.shape[1] != names:
@@ -115,5 +108,6 @@ def normal_equations(structure: TaskStructure, joint_axes: torch.Tensor, positio
             Jp = Jp * w_position[:, off_base].repeat_interleave(3, dim=1)[..., None]
         if hessian:
             H = H + Jp.transpose(1, 2) @ Jp
+        weighted_p = v[:, : v_position.shape[1]]
         g = g - (Jp.transpose(1, 2) @ weighted_p[:, off_base].flatten(1).unsqueeze(-1)).squeeze(-1)
     return H, g

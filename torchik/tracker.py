@@ -120,6 +120,11 @@ class Trajectory:
     diagnostics: dict[str, torch.Tensor] = field(default_factory=dict)
 
 
+def _axpy(x: torch.Tensor, a: "float | torch.Tensor", y: torch.Tensor) -> torch.Tensor:
+    """x + a y in one operation, a a float or a tensor that broadcasts ([B,1] for a jittered dt)."""
+    return torch.add(x, y, alpha=a) if isinstance(a, float) else torch.addcmul(x, a, y)
+
+
 class DynamicalIK:
     """The tracker. Build it once for a model and a set of targets, `reset`, then `step` or `run`.
 
@@ -163,6 +168,10 @@ class DynamicalIK:
         links = tuple(dict.fromkeys(self.position_links + self.orientation_links))
         self._selection = model.select(links)  # raises UnknownLinkError for a bad name
         self._task = TaskStructure.build(model, self.orientation_links, self.position_links)
+        # the paper's targets (orientations and the base's position) need only the links'
+        # rotations and the joints' axes: no positions, no Jacobians
+        self._rotations_only = self._task.position is None and len(self.orientation_links) > 0
+        self._orientation_selection = model.select(self.orientation_links) if self.orientation_links else None
         index = {name: i for i, name in enumerate(links)}
         long = dict(dtype=torch.long, device=model.device)
         self._position_index = torch.tensor([index[n] for n in self.position_links], **long)
@@ -227,10 +236,12 @@ class DynamicalIK:
         self._base_bounds = base_velocity_bounds(B, self.limits, **kw)
         self.backend = self._backend_for(B)
         self._structured = self._tree is not None and isinstance(self.backend, BatchedBackend) and B >= self.TREE_FROM
-        stacked = self.scheme == "midpoint" and B <= self.STACK_BELOW and self.model.n_subjects == 1
-        rows = 2 * B if stacked else B
-        self._buffers = self.model.empty_output(rows, self._selection, self._task.position is not None,
-                                                self._task.position)
+        self._stacked = B <= self.STACK_BELOW and self.model.n_subjects == 1
+        rows = 2 * B if self._stacked and self.scheme == "midpoint" else B
+        self._target_shapes = ((B, len(self.position_links), 3), (B, len(self.position_links), 3),
+                               (B, len(self.orientation_links), 3, 3), (B, len(self.orientation_links), 3))
+        self._buffers = None if self._rotations_only else \
+            self.model.empty_output(rows, self._selection, self._task.position is not None, self._task.position)
         return self.state
 
     @property
@@ -257,7 +268,9 @@ class DynamicalIK:
         start = time.perf_counter()
         q = self._require_state()
         B, model = q.base_position.shape[0], self.model
-        check_targets(targets, len(self.position_links), len(self.orientation_links), model.dtype, model.device, B)
+        if tuple(t.shape for t in vars(targets).values()) != self._target_shapes or \
+                any(t.dtype != model.dtype or t.device != model.device for t in vars(targets).values()):
+            check_targets(targets, len(self.position_links), len(self.orientation_links), model.dtype, model.device, B)
         dt = self._time_step(dt, B)
         clean = clean_targets(targets)
         x = clean.targets
@@ -271,38 +284,54 @@ class DynamicalIK:
             # the Jacobian at mid-step: q + dt/2 times the velocity at the step's first quarter,
             # extrapolated from the last two steps' velocities (each taken at its own midpoint)
             half = 0.5 * dt
-            nu_ahead = q.velocity + self._velocity_slope * (0.5 * self._last_dt + 0.25 * dt)
-            p_mid = q.base_position + half * nu_ahead[:, :3]
+            nu_ahead = _axpy(q.velocity, 0.5 * self._last_dt + 0.25 * dt, self._velocity_slope)
             R_mid = so3.exp(half * nu_ahead[:, 3:6]) @ R_B
-            s_mid = q.joint_positions + half * nu_ahead[:, 6:]
-            task = dict(jacobian=self._task.position is not None, jacobian_links=self._task.position, joint_axes=True)
-            if B <= self.STACK_BELOW and model.n_subjects == 1:
-                # small batches cost per operation, not per row: one call for both configurations
-                both = model(torch.cat((q.base_position, p_mid)), torch.cat((R_B, R_mid)),
-                             torch.cat((q.joint_positions, s_mid)), self._selection, out=self._buffers, **task)
-                now = LinkKinematics(both.rotation[:B], both.position[:B], None)
-                mid = LinkKinematics(None, None, None if both.jacobian is None else both.jacobian[B:], both.joint_axes[B:])
-            else:
-                now = model(q.base_position, R_B, q.joint_positions, self._selection, jacobian=False)
-                mid = model(p_mid, R_mid, s_mid, self._selection, out=self._buffers, **task)
+            s_mid = _axpy(q.joint_positions, half, nu_ahead[:, 6:])
             x_r = previous
             v_p, v_o = self._mean_velocity(before, previous, x, dt)
         else:
-            now = mid = model(q.base_position, R_B, q.joint_positions, self._selection, out=self._buffers,
-                              jacobian=self._task.position is not None, jacobian_links=self._task.position,
-                              joint_axes=True)
+            R_mid, s_mid = R_B, q.joint_positions
             x_r, v_p, v_o = x, x.linear_velocity, x.angular_velocity
+        stacked = self.scheme == "midpoint" and self._stacked
+        J_p = None
+        if self._rotations_only:  # orientation targets and the base's position: no positions, no Jacobians
+            p_hat = q.base_position.unsqueeze(1)
+            if stacked:  # small batches cost per operation, not per row: one call for both configurations
+                both = model.rotations(torch.cat((R_B, R_mid)), torch.cat((q.joint_positions, s_mid)),
+                                       self._orientation_selection, joint_axes=True)
+                R_hat, joint_axes = both.rotation[:B], both.joint_axes[B:]
+            elif self.scheme == "midpoint":
+                R_hat = model.rotations(R_B, q.joint_positions, self._orientation_selection).rotation
+                joint_axes = model.rotations(R_mid, s_mid, self._orientation_selection, joint_axes=True).joint_axes
+            else:
+                now = model.rotations(R_B, q.joint_positions, self._orientation_selection, joint_axes=True)
+                R_hat, joint_axes = now.rotation, now.joint_axes
+        else:  # position targets off the base need link positions and their Jacobians
+            task = dict(jacobian=self._task.position is not None, jacobian_links=self._task.position, joint_axes=True)
+            if self.scheme == "midpoint":
+                p_mid = _axpy(q.base_position, half, nu_ahead[:, :3])
+                if stacked:
+                    both = model(torch.cat((q.base_position, p_mid)), torch.cat((R_B, R_mid)),
+                                 torch.cat((q.joint_positions, s_mid)), self._selection, out=self._buffers, **task)
+                    now = LinkKinematics(both.rotation[:B], both.position[:B], None)
+                    mid = LinkKinematics(None, None, None if both.jacobian is None else both.jacobian[B:], both.joint_axes[B:])
+                else:
+                    now = model(q.base_position, R_B, q.joint_positions, self._selection, jacobian=False)
+                    mid = model(p_mid, R_mid, s_mid, self._selection, out=self._buffers, **task)
+            else:
+                now = mid = model(q.base_position, R_B, q.joint_positions, self._selection, out=self._buffers, **task)
+            R_hat = now.rotation.index_select(1, self._orientation_index)
+            p_hat = now.position.index_select(1, self._position_index)
+            joint_axes, J_p = mid.joint_axes, mid.jacobian
         kinematics_time = time.perf_counter() - kinematics_start
-        R_hat = now.rotation.index_select(1, self._orientation_index)
-        p_hat = now.position.index_select(1, self._position_index)
         r_p = x_r.position - p_hat
         r_o = orientation_residual(x_r.rotation, R_hat)
         weights = (None, None) if clean.all_valid else (clean.position_valid.to(q.velocity.dtype),
                                                         clean.orientation_valid.to(q.velocity.dtype))
-        H, g = normal_equations(self._task, mid.joint_axes, mid.jacobian,
+        H, g = normal_equations(self._task, joint_axes, J_p,
                                 torch.addcmul(v_p, self._position_gain, r_p), torch.addcmul(v_o, self._orientation_gain, r_o),
                                 self.damping, *weights, hessian=not self._structured)
-        tree = TreeHessian.from_targets(self._tree, mid.joint_axes, self.damping, len(self.position_links),
+        tree = TreeHessian.from_targets(self._tree, joint_axes, self.damping, len(self.position_links),
                                         weights[1], weights[0]) if self._structured else None
         lb, ub = velocity_bounds(q.joint_positions, model.lower, model.upper, self.limits, dt, self._base_bounds)
         G = h = None
@@ -325,7 +354,7 @@ class DynamicalIK:
         self._state = State(p_next, R_next, s_next, nu)
         self._rotation = orthonormalize(R_next)
 
-        residual_norm = torch.cat((r_p, r_o), dim=1).norm(dim=-1)  # [B,n_p+n_o]
+        residual_norm = torch.linalg.vector_norm(torch.cat((r_p, r_o), dim=1), dim=-1)  # [B,n_p+n_o]
         diagnostics = StepDiagnostics(
             mnte=orientation_error(previous.rotation, R_hat).mean(-1) if clean.all_valid
             else self._mean_over_valid(orientation_error(previous.rotation, R_hat), clean.orientation_valid),
@@ -378,8 +407,11 @@ class DynamicalIK:
             w_before = (-h * h / (6.0 * h1 * (h1 + h)))[:, :, None]  # [B,1,1]
             w_now = ((h / 3.0 + h1 / 2.0) / (h + h1))[:, :, None]
         w_prev = 1.0 - w_now - w_before
-        mean = lambda name: (w_prev * getattr(previous, name) + w_now * getattr(current, name)  # noqa: E731
-                             + (0.0 if before is None else w_before * getattr(before, name)))
+
+        def mean(name: str) -> torch.Tensor:
+            v = _axpy(w_prev * getattr(previous, name), w_now, getattr(current, name))
+            return v if before is None else _axpy(v, w_before, getattr(before, name))
+
         return mean("linear_velocity"), mean("angular_velocity")
 
     def _time_step(self, dt, B: int) -> torch.Tensor | float:

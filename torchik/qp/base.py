@@ -67,7 +67,8 @@ def unconstrained_if_feasible(problem: QPProblem) -> tuple[torch.Tensor, torch.T
     """
     L, info = torch.linalg.cholesky_ex(problem.dense_hessian)
     x = torch.cholesky_solve(-problem.g.unsqueeze(-1), L).squeeze(-1)
-    feasible = (info == 0) & torch.isfinite(x).all(-1) & (x >= problem.lb).all(-1) & (x <= problem.ub).all(-1)
+    # within every bound (NaN fails the comparison) and finite
+    feasible = (info == 0) & ((x.clamp(problem.lb, problem.ub) == x) & torch.isfinite(x)).all(-1)
     if problem.G is not None:
         feasible &= ((problem.G @ x.unsqueeze(-1)).squeeze(-1) <= problem.h).all(-1)
     return x, feasible
