@@ -287,42 +287,13 @@ class DynamicalIK:
             nu_ahead = _axpy(q.velocity, 0.5 * self._last_dt + 0.25 * dt, self._velocity_slope)
             R_mid = so3.exp(half * nu_ahead[:, 3:6]) @ R_B
             s_mid = _axpy(q.joint_positions, half, nu_ahead[:, 6:])
+            p_mid = None if self._rotations_only else _axpy(q.base_position, half, nu_ahead[:, :3])
             x_r = previous
             v_p, v_o = self._mean_velocity(before, previous, x, dt)
         else:
-            R_mid, s_mid = R_B, q.joint_positions
+            p_mid, R_mid, s_mid = q.base_position, R_B, q.joint_positions
             x_r, v_p, v_o = x, x.linear_velocity, x.angular_velocity
-        stacked = self.scheme == "midpoint" and self._stacked
-        J_p = None
-        if self._rotations_only:  # orientation targets and the base's position: no positions, no Jacobians
-            p_hat = q.base_position.unsqueeze(1)
-            if stacked:  # small batches cost per operation, not per row: one call for both configurations
-                both = model.rotations(torch.cat((R_B, R_mid)), torch.cat((q.joint_positions, s_mid)),
-                                       self._orientation_selection, joint_axes=True)
-                R_hat, joint_axes = both.rotation[:B], both.joint_axes[B:]
-            elif self.scheme == "midpoint":
-                R_hat = model.rotations(R_B, q.joint_positions, self._orientation_selection).rotation
-                joint_axes = model.rotations(R_mid, s_mid, self._orientation_selection, joint_axes=True).joint_axes
-            else:
-                now = model.rotations(R_B, q.joint_positions, self._orientation_selection, joint_axes=True)
-                R_hat, joint_axes = now.rotation, now.joint_axes
-        else:  # position targets off the base need link positions and their Jacobians
-            task = dict(jacobian=self._task.position is not None, jacobian_links=self._task.position, joint_axes=True)
-            if self.scheme == "midpoint":
-                p_mid = _axpy(q.base_position, half, nu_ahead[:, :3])
-                if stacked:
-                    both = model(torch.cat((q.base_position, p_mid)), torch.cat((R_B, R_mid)),
-                                 torch.cat((q.joint_positions, s_mid)), self._selection, out=self._buffers, **task)
-                    now = LinkKinematics(both.rotation[:B], both.position[:B], None)
-                    mid = LinkKinematics(None, None, None if both.jacobian is None else both.jacobian[B:], both.joint_axes[B:])
-                else:
-                    now = model(q.base_position, R_B, q.joint_positions, self._selection, jacobian=False)
-                    mid = model(p_mid, R_mid, s_mid, self._selection, out=self._buffers, **task)
-            else:
-                now = mid = model(q.base_position, R_B, q.joint_positions, self._selection, out=self._buffers, **task)
-            R_hat = now.rotation.index_select(1, self._orientation_index)
-            p_hat = now.position.index_select(1, self._position_index)
-            joint_axes, J_p = mid.joint_axes, mid.jacobian
+        R_hat, p_hat, joint_axes, J_p = self._kinematics(q, R_B, p_mid, R_mid, s_mid)
         kinematics_time = time.perf_counter() - kinematics_start
         r_p = x_r.position - p_hat
         r_o = orientation_residual(x_r.rotation, R_hat)
@@ -369,6 +340,42 @@ class DynamicalIK:
             qp_time=qp_time,
         )
         return self.state, diagnostics
+
+    def _kinematics(self, q: State, R_B: torch.Tensor, p_mid: torch.Tensor | None, R_mid: torch.Tensor,
+                    s_mid: torch.Tensor):
+        """What the step needs of the kinematics: the orientation targets' links' rotations R_hat
+        [B,n_o,3,3] and the position targets' links' positions p_hat [B,n_p,3] (or [B,1,3]) at the
+        state (q, R_B); the joints' world axes [B,n,3] and the Jacobians of the position links off
+        the base (or None) at (p_mid, R_mid, s_mid), the same configuration in the paper's scheme.
+        p_mid: None when every position target is on the base link."""
+        B, model = q.base_position.shape[0], self.model
+        # small batches cost per operation, not per row: both configurations go in one call
+        stacked = self.scheme == "midpoint" and self._stacked
+        if self._rotations_only:  # orientation targets and the base's position: no positions, no Jacobians
+            p_hat = q.base_position.unsqueeze(1)
+            if self.scheme == "paper":
+                now = model.rotations(R_B, q.joint_positions, self._orientation_selection, joint_axes=True)
+                return now.rotation, p_hat, now.joint_axes, None
+            if stacked:
+                both = model.rotations(torch.cat((R_B, R_mid)), torch.cat((q.joint_positions, s_mid)),
+                                       self._orientation_selection, joint_axes=True)
+                return both.rotation[:B], p_hat, both.joint_axes[B:], None
+            return (model.rotations(R_B, q.joint_positions, self._orientation_selection).rotation, p_hat,
+                    model.rotations(R_mid, s_mid, self._orientation_selection, joint_axes=True).joint_axes, None)
+        # position targets off the base need link positions and their Jacobians
+        task = dict(jacobian=self._task.position is not None, jacobian_links=self._task.position, joint_axes=True)
+        if self.scheme == "paper":
+            now = mid = model(q.base_position, R_B, q.joint_positions, self._selection, out=self._buffers, **task)
+        elif stacked:
+            both = model(torch.cat((q.base_position, p_mid)), torch.cat((R_B, R_mid)),
+                         torch.cat((q.joint_positions, s_mid)), self._selection, out=self._buffers, **task)
+            now = LinkKinematics(both.rotation[:B], both.position[:B], None)
+            mid = LinkKinematics(None, None, None if both.jacobian is None else both.jacobian[B:], both.joint_axes[B:])
+        else:
+            now = model(q.base_position, R_B, q.joint_positions, self._selection, jacobian=False)
+            mid = model(p_mid, R_mid, s_mid, self._selection, out=self._buffers, **task)
+        return (now.rotation.index_select(1, self._orientation_index), now.position.index_select(1, self._position_index),
+                mid.joint_axes, mid.jacobian)
 
     def _history(self, x: Targets, clean) -> tuple[Targets, Targets | None]:
         """The targets one and two steps back, a dropped (non-finite) one replaced by the current;
