@@ -29,6 +29,7 @@ import pytest
 import torch
 
 from torchik.diagnosis.calibration import apply_calibration
+from torchik.diagnosis.effect import GUARD, halves
 from torchik.diagnosis.gyro import GyroBias, GyroScale, StreamDelay
 from torchik.diagnosis.joints import JointLimit, MissingDof
 from torchik.diagnosis.loop import diagnose, errors
@@ -247,3 +248,22 @@ def test_the_calibration_file_undoes_the_measurement_effects(runs):
     assert np.allclose(again.orientation, result.recording.orientation, atol=1e-9)
     assert np.allclose(again.angular_velocity, result.recording.angular_velocity, atol=1e-9)
     assert len(calibration["effects"]) >= 2
+
+
+@pytest.mark.parametrize("rate,duration", [(50, 5.0), (100, 12.3), (100, 2.2), (12, 6.0), (30, 0.8)])
+def test_train_and_test_halves_are_a_guard_apart(rate, duration):
+    """Alternate blocks, no training sample closer to a test sample than the fits' filter span
+    (1 / min(5 Hz, rate / 4)), so that they share no noise; without the guard every sample after
+    the transient is in one half."""
+    time = torch.arange(0.0, duration, 1.0 / rate, dtype=torch.float64) + 3.0
+    train, test = halves(time)
+    assert int(train.sum()) > 0.3 * len(time) / 2 and int(test.sum()) > 0.3 * len(time) / 2
+    start = 1.0 if duration > 3.0 else 0.0  # the transient, skipped when there is time for it
+    span = float(time[-1] - time[0]) - start
+    block = 1.0 if span >= 1.5 else span / 4  # shorter recordings alternate quarters
+    expected = min(1.0 / min(5.0, rate / 4), block / 2)  # the guard, capped at half a block
+    assert expected >= GUARD or block < 1.0
+    gap = (time[train][:, None] - time[test][None, :]).abs().min()
+    assert float(gap) >= expected - 1e-9
+    train0, test0 = halves(time, guard=0.0)
+    assert bool((train0 | test0)[time >= time[0] + start].all()) and not bool((train0 & test0).any())

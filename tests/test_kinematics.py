@@ -78,6 +78,23 @@ def test_rotation_only_kinematics_match_idyntree(model_and_urdf, batch):
     assert np.abs(out.joint_axes.numpy()[:, moved] - axes_from_jacobian[:, moved.numpy()]).max() <= 1e-9
 
 
+@pytest.mark.parametrize("batch", [50, 5])
+def test_a_non_finite_joint_angle_spoils_only_the_links_it_moves(batch):
+    """NaN in one joint of one subject: in `rotations`, as in `forward`, exactly the links below that
+    joint of that subject are NaN; the other links and subjects are untouched."""
+    model = load_model("human48")
+    links = TRACKED_LINKS["human48"]
+    p, R, s = random_configurations(model, batch, seed=2)
+    mask = model.select(links).ancestor_mask  # [L,n]
+    for joint in (0, model.joint_names.index("jRightElbow_rotz")):
+        bad = s.clone()
+        bad[1, joint] = float("nan")
+        spoiled = torch.zeros(batch, len(links), dtype=torch.bool)
+        spoiled[1] = mask[:, joint] > 0
+        for out in (model.rotations(R, bad, links).rotation, model(p, R, bad, links, jacobian=False).rotation):
+            assert torch.equal(out.isnan().flatten(-2).any(-1), spoiled)
+
+
 @pytest.mark.parametrize("name", MODELS)
 def test_jacobian_matches_finite_differences(name):
     """Each column of J is the link's (linear, world angular) velocity for a unit component of nu."""

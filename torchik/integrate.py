@@ -33,7 +33,8 @@ def baumgarte_step(R: torch.Tensor, omega: torch.Tensor, dt: torch.Tensor | floa
     cofactor = torch.linalg.cross(R.index_select(-1, columns[0]), R.index_select(-1, columns[1]), dim=-2)
     determinant = (R * cofactor).sum((-2, -1), keepdim=True) / 3.0  # each column gives det R
     pull = cofactor / determinant - R  # R^-T - R
-    if isinstance(dt, float):
+    if not isinstance(dt, torch.Tensor):
+        dt = float(dt)
         return torch.add(R, torch.add(R @ body, pull, alpha=0.5 * min(rho, 1.0 / dt)), alpha=dt)
     rho, dt = torch.clamp(1.0 / dt, max=rho)[..., None], dt[..., None]  # [B,1,1]
     return torch.addcmul(R, dt, torch.addcmul(R @ body, 0.5 * rho, pull))
@@ -75,8 +76,8 @@ def orthonormalize(R: torch.Tensor) -> torch.Tensor:
 def integrate(p: torch.Tensor, R: torch.Tensor, s: torch.Tensor, nu: torch.Tensor, dt: torch.Tensor | float,
               rotation: str = "baumgarte", rho: float = 100.0):
     """Configuration after dt. p: [B,3], R: [B,3,3], s: [B,n], nu: [B,6+n], dt: [B,1] or a float -> (p, R, s)."""
-    if isinstance(dt, float):
-        p_next, s_next = torch.add(p, nu[:, :3], alpha=dt), torch.add(s, nu[:, 6:], alpha=dt)
+    if not isinstance(dt, torch.Tensor):
+        p_next, s_next = torch.add(p, nu[:, :3], alpha=float(dt)), torch.add(s, nu[:, 6:], alpha=float(dt))
     else:
         p_next, s_next = torch.addcmul(p, dt, nu[:, :3]), torch.addcmul(s, dt, nu[:, 6:])
     if rotation == "baumgarte":

@@ -331,18 +331,16 @@ class KinematicModel:
         self._set_small_batch_rotations()
 
     def _set_small_batch_rotations(self) -> None:
-        """Batch-first constants of the rotation-only kinematics for small batches ([S,F,3,3]):
-        frames 1..F-1 then the world (frame F, the identity, its own parent in the jumps); frame 0,
-        the base, is the base rotation itself. R_local = (R_off + C) + sin S - cos C, with
-        S = R_off hat(axis) and C = R_off hat(axis)^2, zero for the world, whose angle is unused."""
+        """Batch-first constants of the rotation-only kinematics for small batches ([S,F-1,3,3], frames
+        1..F-1; frame 0, the base, is the base rotation itself, and the world, frame F, the identity):
+        R_local = (R_off + C) + sin S - cos C, with S = R_off hat(axis) and C = R_off hat(axis)^2."""
         g = self._geometry
-        first = lambda t: t.permute(3, 0, 1, 2)[:, 1:]  # noqa: E731  [F,3,3,S] -> [S,F-1,3,3]
-        S = g.offset_rotation.shape[-1]
-        world = torch.eye(3, dtype=self.dtype, device=self.device).expand(S, 1, 3, 3)
-        self._small_offset = torch.cat((first(g.offset_rotation + g.rotation_cos_term), world), 1).contiguous()
-        self._small_sin = torch.cat((first(g.rotation_sin_term), torch.zeros_like(world)), 1).contiguous()
-        self._small_cos = torch.cat((first(g.rotation_cos_term), torch.zeros_like(world)), 1).contiguous()
-        self._small_angle_index = torch.cat((self._frame_joint_t[1:], self._frame_joint_t[:1]))
+        first = lambda t: t.permute(3, 0, 1, 2)[:, 1:].contiguous()  # noqa: E731  [F,3,3,S] -> [S,F-1,3,3]
+        self._small_offset = first(g.offset_rotation + g.rotation_cos_term)
+        self._small_sin = first(g.rotation_sin_term)
+        self._small_cos = first(g.rotation_cos_term)
+        self._small_angle_index = self._frame_joint_t[1:]
+        self._world = torch.eye(3, dtype=self.dtype, device=self.device)[None, None]  # [1,1,3,3]
         self._joint_axes_row = self._joint_axes.transpose(1, 2)  # [n,1,3]
 
     def to(self, dtype=None, device=None) -> "KinematicModel":
@@ -522,10 +520,11 @@ class KinematicModel:
 
         Pointer jumping on batch-first 3x3 rotations: a few large operations, which is what costs
         least when the batch is small and each operation's overhead dominates."""
-        angle = s.index_select(1, self._small_angle_index)[:, :, None, None]  # [B,F,1,1]
+        angle = s.index_select(1, self._small_angle_index)[:, :, None, None]  # [B,F-1,1,1]
         R_local = torch.addcmul(torch.addcmul(self._small_offset, torch.sin(angle), self._small_sin),
                                 torch.cos(angle), self._small_cos, value=-1.0)
-        R = torch.cat((R_B.unsqueeze(1), R_local), 1)  # the base frame's offset is the identity
+        # the base frame's offset is the identity; the world is its own parent in the jumps
+        R = torch.cat((R_B.unsqueeze(1), R_local, self._world.expand(R_B.shape[0], 1, 3, 3)), 1)
         for up in self._jumps:
             R = torch.matmul(R.index_select(1, up), R)
         return R

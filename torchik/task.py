@@ -81,7 +81,8 @@ def normal_equations(structure: TaskStructure, joint_axes: torch.Tensor, positio
     `structure.position`, the position links off the base (its linear rows are used; ignored when
     every position target is on the base link);
     v_position: [B,n_p,3], v_orientation: [B,n_o,3] the corrected velocities v*;
-    w_position [B,n_p], w_orientation [B,n_o]: target weights (None: all 1).
+    w_position [B,n_p], w_orientation [B,n_o]: target weights, 1 to use a target, 0 to drop it
+    (None: all 1); other values are not a weighted least squares for position targets off the base.
     hessian: False to skip H (returned as None) when a structured solver builds its own.
     """
     B = joint_axes.shape[0]

@@ -122,7 +122,7 @@ class Trajectory:
 
 def _axpy(x: torch.Tensor, a: "float | torch.Tensor", y: torch.Tensor) -> torch.Tensor:
     """x + a y in one operation, a a float or a tensor that broadcasts ([B,1] for a jittered dt)."""
-    return torch.add(x, y, alpha=a) if isinstance(a, float) else torch.addcmul(x, a, y)
+    return torch.addcmul(x, a, y) if isinstance(a, torch.Tensor) else torch.add(x, y, alpha=float(a))
 
 
 class DynamicalIK:
@@ -268,8 +268,9 @@ class DynamicalIK:
         start = time.perf_counter()
         q = self._require_state()
         B, model = q.base_position.shape[0], self.model
-        if tuple(t.shape for t in vars(targets).values()) != self._target_shapes or \
-                any(t.dtype != model.dtype or t.device != model.device for t in vars(targets).values()):
+        fields = vars(targets).values()
+        if tuple(getattr(t, "shape", None) for t in fields) != self._target_shapes or \
+                any(t.dtype != model.dtype or t.device != model.device for t in fields):  # then says what is wrong
             check_targets(targets, len(self.position_links), len(self.orientation_links), model.dtype, model.device, B)
         dt = self._time_step(dt, B)
         clean = clean_targets(targets)
@@ -347,7 +348,8 @@ class DynamicalIK:
         [B,n_o,3,3] and the position targets' links' positions p_hat [B,n_p,3] (or [B,1,3]) at the
         state (q, R_B); the joints' world axes [B,n,3] and the Jacobians of the position links off
         the base (or None) at (p_mid, R_mid, s_mid), the same configuration in the paper's scheme.
-        p_mid: None when every position target is on the base link."""
+        p_mid: None when every position target is on the base link; p_hat is then the base position
+        [B,1,3], which broadcasts against every position target."""
         B, model = q.base_position.shape[0], self.model
         # small batches cost per operation, not per row: both configurations go in one call
         stacked = self.scheme == "midpoint" and self._stacked

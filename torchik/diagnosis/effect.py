@@ -74,17 +74,34 @@ def combine(*scores: tuple[Score, float]) -> Score:
                  sum(s.n for s, _ in scores))
 
 
-def halves(time: torch.Tensor, block: float = 1.0, transient: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
+GUARD = 0.2  # s: the fits low-pass at up to 5 Hz, whose response's main lobe spans about 1/5 s
+
+
+def halves(time: torch.Tensor, block: float = 1.0, transient: float = 1.0, guard: float | None = None
+           ) -> tuple[torch.Tensor, torch.Tensor]:
     """Train and test masks [T]: alternate blocks of `block` seconds (even train, odd test), so
     that both halves see every phase of a periodic motion and a drift's whole span. The first
     `transient` seconds, while the tracker converges from its initial posture, are in neither
-    (none when the recording is shorter than three times that)."""
+    (none when the recording is shorter than three times that); a recording shorter than one and
+    a half blocks alternates quarters instead.
+
+    Samples within guard / 2 of a block's edge are in neither half: the fits low-pass the whole
+    series, and without the gap a test sample's filtered value would hold the noise of the
+    training samples beside it (and the reverse), which makes the held-out score optimistic. The
+    default guard is the filter's span, 1 / cutoff with the fits' cutoff min(5 Hz, rate / 4), and
+    at most half a block; guard = 0 gives every sample a half."""
+    if guard is None:
+        guard = max(GUARD, 4.0 * float(torch.diff(time).median())) if len(time) > 1 else 0.0
     start = float(time[0]) + (transient if float(time[-1] - time[0]) > 3 * transient else 0.0)
-    index = torch.floor((time - start) / block).long()
-    if int(index.max()) < 1:  # shorter than two blocks: alternate quarters
-        index = torch.floor(4 * (time - start) / max(float(time[-1] - start), 1e-9)).long()
-    train = (index % 2 == 0) & (time >= start)
-    return train, (index % 2 == 1) & (time >= start)
+    position = (time - start) / block  # in blocks
+    if float(position.max()) < 1.5:  # too short for a test block: alternate quarters
+        block = max(float(time[-1] - start), 1e-9) / 4
+        position = (time - start) / block
+    index = torch.floor(position).long()
+    phase = position - index  # where in its block, 0 to 1
+    margin = min(0.5 * guard / block, 0.25)
+    inside = (time >= start) & (phase >= margin) & (phase < 1.0 - margin)
+    return (index % 2 == 0) & inside, (index % 2 == 1) & inside
 
 
 @dataclass

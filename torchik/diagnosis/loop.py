@@ -173,8 +173,8 @@ class _Subject:
         return candidates(analysis, b, train, test, self.urdf, kinds, self.derived)
 
     def refit(self, effect: Effect) -> Effect | None:
-        """The effect's kind and target fitted again on all the current data."""
-        train, test = halves(self.analysis[0].time)
+        """The effect's kind and target fitted again on all the current data (after the transient)."""
+        train, test = halves(self.analysis[0].time, guard=0.0)
         found = [c for c in self.candidates((effect.kind,), train | test, train | test)
                  if c.target == effect.target and c.fit is not None]
         return found[0] if found else None
