@@ -236,6 +236,9 @@ class DynamicalIK:
         self._base_bounds = base_velocity_bounds(B, self.limits, **kw)
         self.backend = self._backend_for(B)
         self._structured = self._tree is not None and isinstance(self.backend, BatchedBackend) and B >= self.TREE_FROM
+        A = None if self.model.linear_limits is None else self.model.linear_limits.A
+        # G [B,m,6+n] of the coupled limits A s_dot <= h: the base's columns are zero
+        self._linear_rows = None if A is None else torch.cat((A.new_zeros(A.shape[0], 6), A), dim=1).expand(B, -1, -1)
         self._stacked = B <= self.STACK_BELOW and self.model.n_subjects == 1
         rows = 2 * B if self._stacked and self.scheme == "midpoint" else B
         self._target_shapes = ((B, len(self.position_links), 3), (B, len(self.position_links), 3),
@@ -306,11 +309,9 @@ class DynamicalIK:
         tree = TreeHessian.from_targets(self._tree, joint_axes, self.damping, len(self.position_links),
                                         weights[1], weights[0]) if self._structured else None
         lb, ub = velocity_bounds(q.joint_positions, model.lower, model.upper, self.limits, dt, self._base_bounds)
-        G = h = None
-        if model.linear_limits is not None:
-            A = model.linear_limits.A
-            G = torch.cat((A.new_zeros(A.shape[0], 6), A), dim=1).expand(B, -1, -1)
-            h = linear_limit_bounds(q.joint_positions, A, model.linear_limits.b, self.limits, dt)
+        G, h = self._linear_rows, None
+        if G is not None:
+            h = linear_limit_bounds(q.joint_positions, model.linear_limits.A, model.linear_limits.b, self.limits, dt)
         problem = QPProblem(H, g, lb, ub, G, h, tree)
         qp_start = time.perf_counter()
         solution = self.backend.solve(problem, warm_start=q.velocity)
