@@ -474,7 +474,7 @@ class KinematicModel:
         p_link = self._link_poses(R, p, sel, out)
         axis = None
         if jacobian or joint_axes:
-            axis = _matvec_soa(R.index_select(0, self._joint_frame), self._joint_axes)  # [n,3,B] world axes
+            axis = self._world_axes(R)
         if jacobian:
             p_jacobian = p_link if jsel is sel else self._link_poses(R, p, jsel, None)
             self._jacobian(base_position, axis, p, p_jacobian, jsel, out.jacobian)
@@ -504,8 +504,7 @@ class KinematicModel:
             R_link = R.index_select(0, sel.anchor)
             if not sel.offsets_are_identity:
                 R_link = _matmul_soa(R_link, sel.offset_rotation.expand_as(R_link))
-            axes = _matvec_soa(R.index_select(0, self._joint_frame), self._joint_axes).permute(2, 0, 1).contiguous() \
-                if joint_axes else None
+            axes = self._world_axes(R).permute(2, 0, 1).contiguous() if joint_axes else None
             return LinkKinematics(R_link.permute(3, 0, 1, 2).contiguous(), None, None, axes)
         R = self._frame_rotations_small(base_rotation, joint_positions)  # [B,F+1,3,3]
         R_link = R.index_select(1, sel.anchor)
@@ -514,6 +513,10 @@ class KinematicModel:
         # the world axis of joint j: its frame's rotation times the axis in that frame
         axes = (R.index_select(1, self._joint_frame) * self._joint_axes_row).sum(-1) if joint_axes else None
         return LinkKinematics(R_link, None, None, axes)
+
+    def _world_axes(self, R: torch.Tensor) -> torch.Tensor:
+        """Every joint's world axis from the frame rotations R [F,3,3,B] (batch last): [n,3,B]."""
+        return _matvec_soa(R.index_select(0, self._joint_frame), self._joint_axes)
 
     def _frame_rotations_small(self, R_B: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
         """World rotations of every skeleton frame, then the world's identity: [B,F+1,3,3].
