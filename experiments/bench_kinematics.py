@@ -24,9 +24,9 @@ import time
 import numpy as np
 import torch
 
-from torchik.models import TRACKED_LINKS, human_urdf, load_model
-from torchik import so3
-from torchik.memory import keep_freed_memory
+from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
+from torchik.method import so3
+from torchik.pipelines.memory import keep_freed_memory
 
 
 def median_time(fn, repeats: int, warmup: int = 3) -> float:
@@ -78,7 +78,7 @@ def main() -> None:
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 64, 1024])
     parser.add_argument("--json", help="write the results here as JSON")
     parser.add_argument("--system-allocator", action="store_true",
-                        help="leave glibc malloc as it is (by default torchik.memory.keep_freed_memory() is on)")
+                        help="leave glibc malloc as it is (by default torchik.keep_freed_memory() is on)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     kept = False if args.system_allocator else keep_freed_memory()

@@ -1,6 +1,6 @@
 """Trials per minute of `torchik cohort` on a generated cohort, with 1 and 2 Dask workers.
 
-Generates the cohort the tests use (`torchik.cohort.synthetic`: 10 subjects of 1.50 to 1.95 m, 4
+Generates the cohort the tests use (`torchik.pipelines.cohort.synthetic`: 10 subjects of 1.50 to 1.95 m, 4
 trials each, alternately Human66 and Human48, walking and running, 1 to 2 s at 50 Hz; longer with
 --durations and --rate), then for each worker count starts a LocalCluster of that many
 single-threaded worker processes and tracks the whole cohort into a fresh folder. Prints, per
@@ -24,13 +24,13 @@ from pathlib import Path
 
 import torch
 
-from torchik.cohort import read_manifest, run_cohort, write_synthetic_cohort
+from torchik.pipelines.cohort import read_manifest, run_cohort, write_synthetic_cohort
 
 
 def baseline(manifest: Path) -> float:
     """Trials per minute tracking each trial alone, in this process, on one thread."""
-    from torchik.cohort.trial import prepare
-    from torchik.track import track_recording
+    from torchik.pipelines.cohort.trial import prepare
+    from torchik.pipelines.track import track_recording
 
     specs = read_manifest(manifest)
     start = time.perf_counter()

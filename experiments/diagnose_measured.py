@@ -3,7 +3,7 @@
     python experiments/diagnose_measured.py [--out experiments/diagnosis] [--reports DIR] [--only NAME ...]
 
 For every recording (through its link map, calibrated as `torchik track` would) and model, runs
-`torchik.diagnosis.diagnose` and writes into --out:
+`torchik.pipelines.diagnosis.loop.diagnose` and writes into --out:
 
     results.md     per recording and model: each effect added, its parameters and score, the MNTE and
                    angular-velocity RMSE before and after it; what was rejected; what remains
@@ -28,12 +28,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from torchik.cli import read_any
-from torchik.diagnosis.loop import Diagnosis, diagnose
-from torchik.diagnosis.report import errors_figure, write
+from torchik.io import read
+from torchik.pipelines.diagnosis.loop import Diagnosis, diagnose
+from torchik.pipelines.diagnosis.report import errors_figure, write
 from torchik.io import map_recording
-from torchik.kinematics import KinematicModel
-from torchik.models import TRACKED_LINKS, human_urdf
+from torchik.method.kinematics import KinematicModel
+from torchik.method.models import TRACKED_LINKS, human_urdf
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 MODELS = ("human48", "human66")
@@ -71,9 +71,9 @@ SOURCES = (
 
 def recording_of(source: Source, model: KinematicModel):
     """The recording in the model's links (mapped and calibrated when the source needs it)."""
-    recording = read_any(str(DATA / source.file))
+    recording = read(str(DATA / source.file))
     if source.map:
-        static = read_any(str(DATA / source.static)) if source.static else None
+        static = read(str(DATA / source.static)) if source.static else None
         recording, _ = map_recording(recording, source.map, model, static, source.frame)
     return recording
 

@@ -20,13 +20,15 @@ from pathlib import Path
 
 import torch
 
-from torchik.memory import keep_freed_memory
-from torchik.models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_model
-from torchik.rrd import log_trajectory
-from torchik.scenarios import scenario_motion
-from torchik.synthetic import Motion, targets_from_motion
-from torchik.track import run_interruptible, tracking_errors
-from torchik.tracker import DynamicalIK, TargetSequence
+from torchik.pipelines.memory import keep_freed_memory
+from torchik.method.models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_model
+from torchik.pipelines.rrd import log_trajectory
+from torchik.synthetic.scenarios import scenario_motion
+from torchik.synthetic.motion import Motion, targets_from_motion
+from torchik.pipelines.evaluation import tracking_errors
+from torchik.pipelines.track import run_interruptible
+from torchik.method.tracker import DynamicalIK
+from torchik.method.state import TargetSequence
 
 
 def walking_targets(model, links, duration: float, rate: float, chunk: int = 2000) -> TargetSequence:

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from torchik import so3
+from torchik.method import so3
 
 REPO = Path(__file__).resolve().parents[1]
 REFERENCE = REPO.parent / "shared" / "reference-models"

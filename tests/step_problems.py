@@ -2,10 +2,10 @@
 
 import torch
 
-from torchik import so3
-from torchik.limits import LimitSettings, linear_limit_bounds, velocity_bounds
-from torchik.qp import JointTree, QPProblem, TreeHessian
-from torchik.task import TaskStructure, normal_equations
+from torchik.method import so3
+from torchik.method.limits import LimitSettings, linear_limit_bounds, velocity_bounds
+from torchik.method.qp import JointTree, QPProblem, TreeHessian
+from torchik.method.task import TaskStructure, normal_equations
 
 
 def step_problems(model, links, batch: int, seed: int, structured: bool = True, dtype=torch.float64) -> QPProblem:

@@ -2,7 +2,7 @@
 
 import pytest
 
-from torchik.bench import run, table
+from torchik.pipelines.bench import run, table
 from torchik.cli import main
 
 

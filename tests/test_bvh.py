@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from torchik import so3
+from torchik.method import so3
 from torchik.io import RecordingError
 from torchik.io.bvh import read_bvh
 

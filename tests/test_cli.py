@@ -17,7 +17,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def run(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "torchik.cli", *args], capture_output=True, text=True, timeout=120,
+    return subprocess.run([sys.executable, "-m", "torchik", *args], capture_output=True, text=True, timeout=120,
                           cwd=cwd)
 
 
@@ -25,7 +25,7 @@ def run(*args, cwd=None):
 def cli(monkeypatch, capsys):
     """`torchik ARGS` in this process: (exit code, stdout, stderr). Faster than a subprocess; the
     allocator tuning of the command line is left out (it would stay with pytest's process)."""
-    monkeypatch.setattr("torchik.memory.keep_freed_memory", lambda: True)
+    monkeypatch.setattr("torchik.pipelines.memory.keep_freed_memory", lambda: True)
 
     def call(*args):
         try:
@@ -106,8 +106,8 @@ def test_track_a_scenario_end_to_end_with_report_and_trajectory(tmp_path, cli):
 
 def test_track_a_recording_file_and_refuse_bad_input(tmp_path, cli):
     from torchik.io import save_recording
-    from torchik.models import TRACKED_LINKS, load_model
-    from torchik.scenarios import scenario
+    from torchik.method.models import TRACKED_LINKS, load_model
+    from torchik.synthetic.scenarios import scenario
 
     path = save_recording(scenario("tpose", load_model("icub"), TRACKED_LINKS["icub"], duration=1.0), tmp_path / "t.npz")
     assert cli("track", "--input", path, "--model", "icub", "--quiet") == (0, "", "")
@@ -156,8 +156,8 @@ def test_the_readme_main_command_writes_a_report_and_a_recording_that_agree(tmp_
 def human_recording(tmp_path_factory):
     """A 0.5 s recording whose segments are Human66's links."""
     from torchik.io import save_recording
-    from torchik.models import TRACKED_LINKS, load_model
-    from torchik.scenarios import scenario
+    from torchik.method.models import TRACKED_LINKS, load_model
+    from torchik.synthetic.scenarios import scenario
 
     path = tmp_path_factory.mktemp("recording") / "walk.npz"
     return save_recording(scenario("walking", load_model("human66"), TRACKED_LINKS["human66"], duration=0.5), path)
@@ -190,7 +190,7 @@ def test_bad_input_exits_2_with_one_line_saying_what_is_wrong(args, says, cli, h
 def test_an_interrupted_track_leaves_valid_shorter_outputs(tmp_path, cli, monkeypatch):
     from test_rrd import read_rrd
 
-    from torchik.tracker import DynamicalIK
+    from torchik.method.tracker import DynamicalIK
 
     step, calls = DynamicalIK.step, []
 
@@ -216,7 +216,7 @@ def test_ctrl_c_during_tracking_leaves_valid_shorter_outputs(tmp_path):
 
     from test_rrd import read_rrd
 
-    command = [sys.executable, "-m", "torchik.cli", "track", "--duration", "30", "--rrd", "walk.rrd", "--report", "walk.json"]
+    command = [sys.executable, "-m", "torchik", "track", "--duration", "30", "--rrd", "walk.rrd", "--report", "walk.json"]
     # a terminal's Ctrl-C: SIGINT with its default action (a background job of a script would ignore it)
     process = subprocess.Popen(command, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))

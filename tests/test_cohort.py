@@ -12,14 +12,14 @@ import pyarrow.parquet as pq
 import pytest
 
 from torchik.cli import main
-from torchik.cohort import read_manifest, run_cohort, write_synthetic_cohort
-from torchik.cohort.plan import plan_batches
-from torchik.cohort.run import EXIT_ONCE_ENV
-from torchik.cohort.synthetic import synthetic_trials
-from torchik.cohort.trial import load_result
+from torchik.pipelines.cohort import read_manifest, run_cohort, write_synthetic_cohort
+from torchik.pipelines.cohort.plan import plan_batches
+from torchik.pipelines.cohort.run import EXIT_ONCE_ENV
+from torchik.pipelines.cohort.synthetic import synthetic_trials
+from torchik.pipelines.cohort.trial import load_result
 from torchik.io import load_recording
-from torchik.models import TRACKED_LINKS, HumanSubject, load_model
-from torchik.track import track_recording
+from torchik.method.models import TRACKED_LINKS, HumanSubject, load_model
+from torchik.pipelines.track import track_recording
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 GOOD = 40
@@ -29,7 +29,7 @@ REPO = Path(__file__).resolve().parents[1]
 @pytest.fixture(autouse=True)
 def no_allocator_tuning(monkeypatch):
     """`main` without the command line's allocator tuning, which would stay with pytest's process."""
-    monkeypatch.setattr("torchik.memory.keep_freed_memory", lambda: True)
+    monkeypatch.setattr("torchik.pipelines.memory.keep_freed_memory", lambda: True)
 
 
 @pytest.fixture(scope="module")

@@ -28,16 +28,16 @@ import numpy as np
 import pytest
 import torch
 
-from torchik.diagnosis.calibration import apply_calibration
-from torchik.diagnosis.effect import GUARD, halves
-from torchik.diagnosis.gyro import GyroBias, GyroScale, StreamDelay
-from torchik.diagnosis.joints import JointLimit, MissingDof
-from torchik.diagnosis.loop import diagnose, errors
-from torchik.diagnosis.placement import HeadingDrift, Misalignment, SensorDelay
-from torchik.diagnosis.position import PositionOffset
-from torchik.diagnosis.synthetic import beyond_limit, recording_of, with_missing_dof
-from torchik.models import TRACKED_LINKS, human_urdf, load_model
-from torchik.scenarios import scenario
+from torchik.pipelines.diagnosis.calibration import apply_calibration
+from torchik.pipelines.diagnosis.effect import GUARD, halves
+from torchik.pipelines.diagnosis.gyro import GyroBias, GyroScale, StreamDelay
+from torchik.pipelines.diagnosis.joints import JointLimit, MissingDof
+from torchik.pipelines.diagnosis.loop import diagnose, errors
+from torchik.pipelines.diagnosis.placement import HeadingDrift, Misalignment, SensorDelay
+from torchik.pipelines.diagnosis.position import PositionOffset
+from torchik.pipelines.diagnosis.synthetic import beyond_limit, recording_of, with_missing_dof
+from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
+from torchik.synthetic.scenarios import scenario
 
 SEEDS = range(10)
 DURATION, RATE, NOISE, GYRO_NOISE = 5.0, 50.0, 0.005, 0.02

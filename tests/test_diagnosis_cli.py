@@ -15,15 +15,16 @@ import numpy as np
 import pytest
 import rerun
 
-from torchik.cli import main, read_any
-from torchik.diagnosis.effect import replace
-from torchik.diagnosis.joints import MissingDof
-from torchik.diagnosis.loop import diagnose
-from torchik.diagnosis.placement import Misalignment
-from torchik.diagnosis.synthetic import recording_of, with_missing_dof
+from torchik.cli import main
+from torchik.io import read
+from torchik.pipelines.diagnosis.effect import replace
+from torchik.pipelines.diagnosis.joints import MissingDof
+from torchik.pipelines.diagnosis.loop import diagnose
+from torchik.pipelines.diagnosis.placement import Misalignment
+from torchik.pipelines.diagnosis.synthetic import recording_of, with_missing_dof
 from torchik.io import angular_velocity_from_orientations, save_recording
-from torchik.models import TRACKED_LINKS, human_urdf, load_model
-from torchik.scenarios import scenario
+from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
+from torchik.synthetic.scenarios import scenario
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -33,7 +34,7 @@ LINKS = TRACKED_LINKS["human48"]
 @pytest.fixture
 def cli(monkeypatch, capsys):
     """`torchik ARGS` in this process: (exit code, stdout, stderr)."""
-    monkeypatch.setattr("torchik.memory.keep_freed_memory", lambda: True)
+    monkeypatch.setattr("torchik.pipelines.memory.keep_freed_memory", lambda: True)
 
     def call(*args):
         code = main([str(a) for a in args])
@@ -106,7 +107,7 @@ def test_measured_mvnx_runs_to_the_end_and_lowers_the_error(name):
     """The Xsens recording (real gyros, 60 Hz): the loop runs to its end with finite errors, the
     overall MNTE after is at most the MNTE before (the loop only checks each effect's own error),
     and Human66 (ball joints) reports every misalignment as not identifiable."""
-    recording = read_any(str(DATA / "mvnx" / "test_mocap.mvnx"))
+    recording = read(str(DATA / "mvnx" / "test_mocap.mvnx"))
     model, links = load_model(name), TRACKED_LINKS[name]
     d, = diagnose(model, human_urdf(int(name[-2:])), [recording], links, max_effects=3)
     assert d.after.overall["mnte"] <= d.before.overall["mnte"]

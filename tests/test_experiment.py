@@ -10,11 +10,11 @@ import pytest
 import torch
 
 from torchik.cli import main
-from torchik.experiment import (METHODS, Settings, convergence, ratios, run_method, run_paper, scenario_cases,
+from torchik.pipelines.experiment import (METHODS, Settings, convergence, ratios, run_method, run_paper, scenario_cases,
                                 statistics)
 from torchik.io import save_recording
-from torchik.models import TRACKED_LINKS, load_model
-from torchik.scenarios import scenario
+from torchik.method.models import TRACKED_LINKS, load_model
+from torchik.synthetic.scenarios import scenario
 
 SHORT = Settings(duration=0.6, transient=0.2, repeats=1, convergence_seconds=0.2)
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"

@@ -1,13 +1,12 @@
 """models.human: the generated subject 1 is the published human-gazebo model; other subjects scale."""
 
 import xml.etree.ElementTree as ET
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from torchik.models import SEGMENTS, HumanSubject, human_urdf, load_model
+from torchik.method.models import SEGMENTS, HumanSubject, human_urdf, load_model
 from torchik.errors import ModelError
 
 from conftest import REPO, reference_urdf

@@ -1,11 +1,9 @@
 """models.icub: iCub from icub-models with its joint limits and coupled shoulder limits."""
 
-import math
 
-import pytest
 import torch
 
-from torchik.models import TRACKED_LINKS, load_model
+from torchik.method.models import TRACKED_LINKS, load_model
 
 
 def test_icub_has_32_revolute_joints_with_finite_limits_and_the_tracked_links():

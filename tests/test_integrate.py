@@ -3,8 +3,8 @@ are orthonormal whatever the integrator."""
 
 import torch
 
-from torchik import so3
-from torchik.integrate import baumgarte_step, exponential_step, orthonormalize
+from torchik.method import so3
+from torchik.method.integrate import baumgarte_step, exponential_step, orthonormalize
 
 
 def spin(step, steps: int):

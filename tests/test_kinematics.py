@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from torchik import InputError, KinematicModel, ModelError, UnknownLinkError, so3
-from torchik.models import TRACKED_LINKS, icub_urdf_path, load_model
+from torchik.method.models import TRACKED_LINKS, icub_urdf_path, load_model
 
 from conftest import random_configurations
 
@@ -41,7 +41,7 @@ def model_and_urdf(request, tmp_path_factory):
     name = request.param
     if name == "icub":
         return load_model(name), icub_urdf_path(), TRACKED_LINKS[name]
-    from torchik.models import human_urdf
+    from torchik.method.models import human_urdf
 
     path = tmp_path_factory.mktemp(name) / f"{name}.urdf"
     path.write_text(human_urdf(int(name[-2:])))
@@ -124,7 +124,7 @@ def test_jacobian_matches_finite_differences(name):
 
 
 def test_batch_of_different_subjects_equals_separate_calls():
-    from torchik.models import HumanSubject
+    from torchik.method.models import HumanSubject
 
     subjects = [HumanSubject(height=h, mass=60 + 10 * i) for i, h in enumerate((1.55, 1.68, 1.80, 1.95))]
     models = [load_model("human66", subject) for subject in subjects]

@@ -2,7 +2,7 @@
 
 import torch
 
-from torchik.limits import LimitSettings, joint_velocity_bounds, linear_limit_bounds, velocity_bounds
+from torchik.method.limits import LimitSettings, joint_velocity_bounds, linear_limit_bounds, velocity_bounds
 
 
 def test_a_step_inside_the_bounds_stays_inside_the_limits():

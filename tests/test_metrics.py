@@ -4,8 +4,8 @@ import math
 
 import torch
 
-from torchik import so3
-from torchik.metrics import angular_velocity_rmse, mnte, orientation_error, summary
+from torchik.method import so3
+from torchik.method.metrics import angular_velocity_rmse, mnte, orientation_error, summary
 
 
 def test_mnte_is_zero_for_identical_rotations_and_a_quarter_for_60_degrees_on_one_of_two_links():

@@ -2,7 +2,7 @@
 
 import torch
 
-from torchik.qp import PiqpBackend, QPProblem, clipped_fallback, unconstrained_if_feasible
+from torchik.method.qp import PiqpBackend, QPProblem, clipped_fallback, unconstrained_if_feasible
 
 
 def random_problem(B: int, N: int, seed: int) -> QPProblem:

@@ -5,9 +5,9 @@ import pytest
 import torch
 
 from step_problems import step_problems
-from torchik.models import TRACKED_LINKS, load_model
-from torchik.qp import DenseHessian, JointTree, TreeHessian
-from torchik.task import TaskStructure, normal_equations
+from torchik.method.models import TRACKED_LINKS, load_model
+from torchik.method.qp import DenseHessian, JointTree, TreeHessian
+from torchik.method.task import TaskStructure, normal_equations
 
 
 @pytest.mark.parametrize("name", ["human66", "icub"])

@@ -1,6 +1,5 @@
 """io.recording: recordings round-trip exactly through .npz, and invalid ones are refused with the reason."""
 
-import json
 
 import numpy as np
 import pytest
@@ -8,7 +7,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from torchik import so3
+from torchik.method import so3
 from torchik.io import Recording, RecordingError, angular_velocity_from_orientations, load_recording, save_recording
 
 

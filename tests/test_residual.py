@@ -4,8 +4,8 @@ import math
 
 import torch
 
-from torchik import so3
-from torchik.residual import corrected_velocity, orientation_error, orientation_residual, position_residual
+from torchik.method import so3
+from torchik.method.residual import corrected_velocity, orientation_error, orientation_residual, position_residual
 
 
 def test_orientation_residual_is_sine_of_the_angle_about_the_world_error_axis():

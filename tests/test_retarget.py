@@ -8,15 +8,16 @@ import numpy as np
 import pytest
 import torch
 
-from torchik import so3
-from torchik.baselines import WholeBodyIK
+from torchik.method import so3
+from torchik.method.baselines import WholeBodyIK
 from torchik.cli import main
-from torchik.experiment import human_to_icub
+from torchik.pipelines.experiment import human_to_icub
 from torchik.io import Recording, save_recording
-from torchik.models import TRACKED_LINKS, load_model
-from torchik.retarget import resample, retarget
-from torchik.scenarios import recording_targets, scenario
-from torchik.tracker import State
+from torchik.method.models import TRACKED_LINKS, load_model
+from torchik.pipelines.retarget import resample, retarget
+from torchik.io.targets import recording_targets
+from torchik.synthetic.scenarios import scenario
+from torchik.method.state import State
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 # iCub is not a person: its links can follow the mapped human ones only so far. On the walk below the

@@ -7,12 +7,14 @@ import rerun.chunk
 import torch
 
 from torchik import InputError, so3
-from torchik.models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_model
-from torchik.rrd import _quaternion_xyzw, log_trajectory, visuals
-from torchik.scenarios import recording_targets, scenario
-from torchik.synthetic import periodic_motion, targets_from_motion
-from torchik.track import run_interruptible, track_recording, tracking_errors
-from torchik.tracker import DynamicalIK
+from torchik.method.models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_model
+from torchik.pipelines.rrd import _quaternion_xyzw, log_trajectory, visuals
+from torchik.io.targets import recording_targets
+from torchik.synthetic.scenarios import scenario
+from torchik.synthetic.motion import periodic_motion, targets_from_motion
+from torchik.pipelines.evaluation import tracking_errors
+from torchik.pipelines.track import run_interruptible, track_recording
+from torchik.method.tracker import DynamicalIK
 
 
 def read_rrd(path, contents, index="time"):
@@ -154,7 +156,7 @@ def test_a_write_that_fails_leaves_the_old_file_whole(walk, tmp_path, monkeypatc
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("torchik.rrd._send_scalars", interrupted)
+    monkeypatch.setattr("torchik.pipelines.rrd._send_scalars", interrupted)
     with pytest.raises(KeyboardInterrupt):
         log_trajectory(path, model, links, trajectory, targets)
     assert path.read_bytes() == b"old" and [p.name for p in tmp_path.iterdir()] == ["walk.rrd"]

@@ -4,7 +4,7 @@ import math
 
 import torch
 
-from torchik import so3
+from torchik.method import so3
 
 
 def test_hat_is_cross_product_and_vee_inverts_it():

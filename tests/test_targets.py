@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from torchik import InputError, so3
-from torchik.targets import Targets, check_targets, clean_targets
+from torchik.method.targets import Targets, check_targets, clean_targets
 
 
 def make(B=2, n_p=1, n_o=3, seed=0) -> Targets:

@@ -3,8 +3,8 @@
 import pytest
 import torch
 
-from torchik.models import TRACKED_LINKS, load_model
-from torchik.task import TaskStructure, normal_equations
+from torchik.method.models import TRACKED_LINKS, load_model
+from torchik.method.task import TaskStructure, normal_equations
 
 from conftest import random_configurations
 

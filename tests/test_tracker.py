@@ -7,11 +7,12 @@ import pytest
 import torch
 
 from torchik import InputError, KinematicModel, so3
-from torchik.models import TRACKED_LINKS, HumanSubject, load_model
-from torchik.residual import orientation_error
-from torchik.synthetic import periodic_motion, targets_from_motion
-from torchik.targets import Targets
-from torchik.tracker import DynamicalIK, State
+from torchik.method.models import TRACKED_LINKS, HumanSubject, load_model
+from torchik.method.residual import orientation_error
+from torchik.synthetic.motion import periodic_motion, targets_from_motion
+from torchik.method.targets import Targets
+from torchik.method.tracker import DynamicalIK
+from torchik.method.state import State
 
 F64 = dict(dtype=torch.float64)
 
@@ -181,7 +182,7 @@ def test_a_batch_of_8_subjects_equals_8_single_runs():
     links = TRACKED_LINKS["human48"]
     sequences = [targets_from_motion(m, periodic_motion(m, 0.5, 100, seed=i), links) for i, m in enumerate(models)]
     cat = lambda name: torch.cat([getattr(s, name) for s in sequences], dim=1)  # noqa: E731
-    from torchik.tracker import TargetSequence
+    from torchik.method.state import TargetSequence
 
     batch = TargetSequence(sequences[0].time, cat("position"), cat("linear_velocity"), cat("rotation"), cat("angular_velocity"))
     # one backend for both: the batched one, structured for the batch and dense for one subject
@@ -210,7 +211,7 @@ def test_nan_targets_are_dropped_counted_and_the_state_stays_finite():
 def test_an_infeasible_step_falls_back_and_says_so():
     model, links = load_model("human48"), TRACKED_LINKS["human48"]
     contradictory = model.to()
-    from torchik.kinematics import LinearLimits
+    from torchik.method.kinematics import LinearLimits
 
     A = torch.zeros(2, model.n_dof, **F64)
     A[0, 0], A[1, 0] = 1.0, -1.0  # s_0 <= -0.5 and s_0 >= 0.5: no configuration satisfies both
@@ -230,7 +231,7 @@ def test_jittered_timestamps_are_honoured():
     t = torch.cat((torch.zeros(1, **F64), dt.cumsum(0)))
     fine = periodic_motion(model, float(t[-1]) + 0.01, 10000)
     idx = (t * 10000).round().long()
-    from torchik.synthetic import Motion
+    from torchik.synthetic.motion import Motion
 
     motion = Motion(fine.time[idx], fine.base_position[idx], fine.base_rotation[idx], fine.joint_positions[idx], fine.velocity[idx])
     sequence = targets_from_motion(model, motion, links)
@@ -240,7 +241,7 @@ def test_jittered_timestamps_are_honoured():
     error = float((honoured.joint_positions - motion.joint_positions)[after].abs().max())
     assert error < 1e-3
     # the same targets stepped with the nominal dt instead of the timestamps drift far more
-    from torchik.tracker import TargetSequence
+    from torchik.method.state import TargetSequence
 
     uniform = TargetSequence(torch.arange(len(t), **F64) * 0.01, sequence.position, sequence.linear_velocity,
                              sequence.rotation, sequence.angular_velocity)

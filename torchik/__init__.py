@@ -1,8 +1,46 @@
-"""torchik: real-time, model-based motion tracking by dynamical inverse kinematics on SO(3)."""
+"""torchik: real-time, model-based motion tracking by dynamical inverse kinematics on SO(3).
+
+    import torchik as tk
+
+    model = tk.load_model("human66")
+    recording = tk.read("walk.mvnx")                 # or tk.scenario("walking", model, tk.TRACKED_LINKS["human66"])
+    trajectory, report = tk.track(model, recording, tk.TRACKED_LINKS["human66"])
+
+The package has four layers, each importing only from those below it: `method/` (the paper's
+algorithm), `io/` and `synthetic/` (data), `pipelines/` (track, retarget, diagnosis, cohort,
+experiment, bench, rrd), `cli/` (the `torchik` command).
+"""
 
 from .errors import InputError, ModelError, TorchikError, UnknownLinkError
-from .kinematics import KinematicModel, LinearLimits, LinkKinematics
+from .io import (Recording, RecordingError, load_map, load_recording, map_recording, read, recording_targets,
+                 save_recording, save_trajectory)
+from .method import so3
+from .method.kinematics import KinematicModel, LinearLimits, LinkKinematics
+from .method.limits import LimitSettings
+from .method.metrics import angular_velocity_rmse, mnte, orientation_error
+from .method.models import MODELS, TRACKED_LINKS, HumanSubject, load_model
+from .method.state import State, StepDiagnostics, TargetSequence, Trajectory
+from .method.targets import Targets
+from .method.tracker import DynamicalIK
+from .pipelines.memory import keep_freed_memory
+from .pipelines.track import track_recording as track
+from .synthetic.motion import periodic_motion, targets_from_motion
+from .synthetic.scenarios import SCENARIOS, scenario
 
 __version__ = "0.1.0"
-__all__ = ["KinematicModel", "LinearLimits", "LinkKinematics", "TorchikError", "ModelError",
-           "UnknownLinkError", "InputError"]
+__all__ = [
+    "__version__",
+    # models and kinematics
+    "load_model", "MODELS", "TRACKED_LINKS", "HumanSubject", "KinematicModel", "LinearLimits", "LinkKinematics",
+    "so3",
+    # the tracker
+    "DynamicalIK", "LimitSettings", "State", "StepDiagnostics", "Targets", "TargetSequence", "Trajectory",
+    "mnte", "angular_velocity_rmse", "orientation_error",
+    # data
+    "read", "Recording", "load_recording", "save_recording", "save_trajectory", "load_map", "map_recording",
+    "recording_targets", "scenario", "SCENARIOS", "periodic_motion", "targets_from_motion",
+    # pipelines
+    "track", "keep_freed_memory",
+    # errors
+    "TorchikError", "ModelError", "UnknownLinkError", "InputError", "RecordingError",
+]

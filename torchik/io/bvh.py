@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .. import so3
+from ..method import so3
 from .recording import Recording, RecordingError, angular_velocity_from_orientations
 
 UNITS = {"cm": 0.01, "m": 1.0, "inch": 0.0254, "cmu": 0.0254 / 0.45}

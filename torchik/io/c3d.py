@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .. import so3
+from ..method import so3
 from .recording import Recording, RecordingError, angular_velocity_from_orientations
 
 PLUG_IN_GAIT = ("PEL", "TRX", "HED", "LCL", "LHU", "LRA", "LHN", "RCL", "RHU", "RRA", "RHN",

@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .. import so3
-from ..kinematics import KinematicModel
+from ..method import so3
+from ..method.kinematics import KinematicModel
 from .recording import Recording, RecordingError
 
 MAPS_DIR = Path(__file__).resolve().parents[2] / "models" / "maps"
@@ -64,14 +64,29 @@ def _rpy(values, where: str) -> np.ndarray:
     return so3.rpy_to_matrix(torch.tensor([float(v) for v in values], dtype=torch.float64)).numpy()
 
 
+def calibration_frame(text: str) -> int | str:
+    """A map's reference frame as written by a user: a frame index, or 'rest' (a BVH's rest pose).
+    ValueError otherwise."""
+    if text == "rest":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise ValueError(f"expected a frame index or 'rest', got {text!r}") from None
+
+
+def built_in_maps() -> list[str]:
+    """The names of the maps torchik ships."""
+    return sorted(p.stem for p in MAPS_DIR.glob("*.toml"))
+
+
 def load_map(name_or_path: str | Path) -> LinkMap:
     """A map by file path or built-in name (a file in models/maps/ without its suffix)."""
     path = Path(name_or_path)
     if not path.suffix:
         path = MAPS_DIR / f"{name_or_path}.toml"
     if not path.is_file():
-        known = sorted(p.stem for p in MAPS_DIR.glob("*.toml"))
-        raise RecordingError(f"no link map {str(name_or_path)!r}; built-in maps: {', '.join(known)}")
+        raise RecordingError(f"no link map {str(name_or_path)!r}; built-in maps: {', '.join(built_in_maps())}")
     try:
         spec = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .. import so3
+from ..method import so3
 from .recording import Recording, RecordingError
 
 FIELDS = ("orientation", "angularVelocity", "position", "velocity")

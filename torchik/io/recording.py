@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .. import so3
+from ..method import so3
 from ..errors import InputError
 
 

@@ -1,0 +1,54 @@
+"""The `torchik` command line: one module per command (its arguments, progress, printing and exit
+code), the options several commands share in `common.py`. Nothing outside this package imports it.
+
+Exit codes: 0 ok; 2 bad input (one line on stderr saying what is wrong and what would be right);
+1 failure; 130 interrupted by Ctrl-C (`track` has then written its outputs for the frames done).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ..errors import TorchikError
+from . import bench, cohort, diagnose, experiment, models, recordings, retarget, track
+from .common import Parser
+
+COMMANDS = (track, models, recordings, bench, experiment, retarget, cohort, diagnose)  # in --help's order
+
+
+def build_parser() -> Parser:
+    parser = Parser(
+        prog="torchik",
+        description="Real-time motion tracking of people and humanoids by dynamical inverse kinematics.",
+        epilog=track.EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for command in COMMANDS:
+        command.add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    from ..pipelines.memory import keep_freed_memory
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    keep_freed_memory()
+    try:
+        return args.run(args)
+    except TorchikError as exc:
+        print(f"torchik {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"torchik {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # the reader (head, less) closed the pipe: not an error of ours
+        sys.stderr.close()
+        return 0
+    except OSError as exc:  # a file that cannot be read or written: the system's reason, in one line
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"torchik {args.command}: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 1

@@ -1,0 +1,73 @@
+"""What every command shares: the parser, options that several commands take, checks made before
+any work, and the device."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..errors import InputError
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: what is wrong and where the usage is, no usage dump."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
+def add_command(subparsers, name: str, help: str, examples: str, description: str | None = None):
+    """A sub-command's parser, its examples shown after the options."""
+    return subparsers.add_parser(name, help=help, description=description, epilog=examples,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
+def frame_argument(text: str) -> int | str:
+    """argparse type of --calibration-frame: a frame index, or 'rest' (a BVH's rest pose)."""
+    from ..io.maps import calibration_frame
+
+    try:
+        return calibration_frame(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_map_arguments(parser: argparse.ArgumentParser, target: str = "the model's links") -> None:
+    """--map, --calibration and --calibration-frame: how a recording's segments become `target`."""
+    from ..io.maps import built_in_maps
+
+    parser.add_argument("--map", help=f"link map from the recording's segments to {target}: a built-in name "
+                                      f"({', '.join(built_in_maps())}) or a .toml file")
+    parser.add_argument("--calibration", metavar="FILE", help="a static trial to calibrate the map's offsets on")
+    parser.add_argument("--calibration-frame", type=frame_argument, default=None,
+                        help="the frame holding the reference pose: an index, or 'rest' for a BVH rest pose "
+                             "(default: the map's own choice, else 0)")
+
+
+def check_outputs(paths, force: bool) -> None:
+    """Refuse, before any work, outputs that exist (without --force) or whose folder does not."""
+    for path in (Path(p) for p in paths if p):
+        if path.exists() and not force:
+            raise InputError(f"{path} exists; add --force to overwrite it")
+        if not path.parent.is_dir():
+            raise InputError(f"{path}: no folder {path.parent} to write into; create it first")
+
+
+def torch_device(text: str):
+    """A torch.device from --device, refused before any work when torch has no such device here."""
+    import torch
+
+    try:
+        device = torch.device(text)
+    except RuntimeError:
+        raise InputError(f"--device {text!r}: expected cpu, cuda or cuda:N") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise InputError("--device cuda: no CUDA device is available to torch here; use --device cpu")
+    return device
+
+
+def model_urdf(name: str):
+    """A built-in model's URDF (text or path): what draws its body in a rerun recording."""
+    from ..method.models import human_urdf, icub_urdf_path
+
+    return icub_urdf_path() if name == "icub" else human_urdf(int(name[-2:]))

@@ -1,0 +1,147 @@
+"""`torchik track`: a recording or a built-in scenario tracked, with a report, a trajectory and a
+rerun recording."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from ..errors import InputError
+from .common import add_command, add_map_arguments, check_outputs, model_urdf, torch_device
+
+EXAMPLES = """examples:
+  torchik track --scenario walking --model human66 --rrd walk.rrd --report walk.json
+                                          track the built-in walking scenario, write a rerun recording
+                                          (open it with: rerun walk.rrd) and report the errors
+  torchik track --input walk.npz --model human66 --out estimate.npz
+  torchik track --scenario running --duration 60 --gain 30 --backend batched --device cuda --quiet --rrd run.rrd
+  torchik track --input walk.c3d --map plugin_gait_to_human --calibration static.c3d --model human48
+  torchik models                          list the models with their DoF, links and limits
+  torchik info walk.mvnx                  segments, rate, duration and gaps of a recording
+  torchik convert walk.mvnx walk.npz      convert to torchik's recording format
+  torchik models --links human48          also list each model's links and joint limits
+  torchik models --write models/          write human66.urdf and human48.urdf (subject 1)
+  torchik models --write out/ --height 1.85 --mass 80 --segment RightUpperArm=0.31
+"""
+
+
+def add_parser(subparsers) -> None:
+    """Register `torchik track`."""
+    track = add_command(subparsers, "track", "track a recording or a built-in scenario and report the errors",
+                        EXAMPLES)
+    source = track.add_mutually_exclusive_group()
+    source.add_argument("--scenario", default="walking", help="built-in scenario: tpose, walking, running (default walking)")
+    source.add_argument("--input", metavar="FILE", help="a recording (.npz) or source file whose segments are the model's links")
+    add_map_arguments(track)
+    track.add_argument("--model", default="human66", choices=("human66", "human48", "icub"))
+    track.add_argument("--urdf", metavar="FILE", help="track with this URDF of --model instead, e.g. the model.urdf "
+                       "`torchik diagnose` writes (--model still names the tracked links)")
+    track.add_argument("--sensor-calibration", metavar="JSON", help="undo the sensor effects (offsets, biases, delays, "
+                       "drift) in the calibration.json `torchik diagnose` wrote for this session, after --map")
+    track.add_argument("--duration", type=float, default=10.0, help="scenario length in seconds (default 10)")
+    track.add_argument("--rate", type=float, default=100.0, help="scenario rate in Hz (default 100)")
+    track.add_argument("--seed", type=int, default=0)
+    track.add_argument("--gain", type=float, default=20.0, help="K for positions and orientations, 1/s (default 20)")
+    track.add_argument("--position-gain", type=float, metavar="K", help="K of the position target, 1/s (default --gain)")
+    track.add_argument("--orientation-gain", type=float, metavar="K",
+                       help="K of the orientation targets, 1/s (default --gain)")
+    track.add_argument("--scheme", default="midpoint", choices=("midpoint", "paper"))
+    track.add_argument("--backend", default="auto", choices=("auto", "piqp", "batched"),
+                       help="QP solver: PIQP per subject, batched in torch, or auto (batched for batches, default)")
+    track.add_argument("--device", default="cpu", help="torch device: cpu (default), cuda or cuda:N")
+    track.add_argument("--report", metavar="JSON", help="write the metrics here")
+    track.add_argument("--out", metavar="NPZ", help="write the estimated trajectory here")
+    track.add_argument("--rrd", metavar="FILE", help="write a rerun recording here (.rrd): the body, targets and "
+                       "diagnostics over time; open it with `rerun FILE`")
+    track.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    track.add_argument("--quiet", action="store_true", help="print nothing but errors (no progress bars)")
+    track.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from ..io import map_recording, read, recording_targets, save_trajectory, write_json
+    from ..method.models import TRACKED_LINKS, load_model
+    from ..pipelines.track import track_recording
+    from ..synthetic.scenarios import SCENARIOS, scenario
+
+    if args.rrd and Path(args.rrd).suffix != ".rrd":
+        raise InputError(f"{args.rrd}: a rerun recording's name must end in .rrd (e.g. walk.rrd)")
+    check_outputs([args.report, args.out, args.rrd], args.force)
+    if not args.input and args.scenario not in SCENARIOS:
+        raise InputError(f"unknown scenario {args.scenario!r}; valid: {', '.join(SCENARIOS)}")
+    device = torch_device(args.device)
+    if device.type == "cpu":
+        # one subject's tensors are too small for torch to split, and on a busy machine its idle
+        # threads spin and wait for each other: a step then takes several times longer
+        torch.set_num_threads(1)
+    if args.urdf:  # e.g. the augmented model a diagnosis wrote
+        from ..pipelines.diagnosis.calibration import load_urdf_model
+
+        model = load_urdf_model(args.urdf, args.model, device)
+    else:
+        model = load_model(args.model, device=device)
+    links = TRACKED_LINKS[args.model]
+    if args.input:
+        recording = read(args.input)
+        source = args.input
+        if args.map:
+            static = read(args.calibration) if args.calibration else None
+            recording, link_map = map_recording(recording, args.map, model, static, args.calibration_frame)
+            links = recording.links
+            source += f" through map {link_map.name!r}"
+    elif args.map or args.calibration:
+        raise InputError("--map and --calibration apply to --input recordings; the scenarios are in the model's links")
+    else:
+        recording = scenario(args.scenario, model.to(device="cpu"), links, duration=args.duration, rate=args.rate,
+                             seed=args.seed)
+        source = f"scenario {args.scenario} ({args.duration:g} s at {args.rate:g} Hz)"
+    if args.sensor_calibration:  # the sensor effects a diagnosis found, undone
+        from ..pipelines.diagnosis.calibration import apply_calibration_file
+
+        recording = apply_calibration_file(recording, args.sensor_calibration)
+        source += f" with sensor calibration {args.sensor_calibration}"
+    position_gain = args.gain if args.position_gain is None else args.position_gain
+    orientation_gain = args.gain if args.orientation_gain is None else args.orientation_gain
+    start = time.perf_counter()
+    trajectory, report = track_recording(model, recording, links, position_gain, orientation_gain, args.scheme,
+                                         args.backend, progress=not args.quiet)
+    report.update(source=source, device=str(device), wall_time_s=time.perf_counter() - start)
+    if not args.quiet:
+        _print_report(report, source, model.name)
+    if args.report:
+        write_json(report, args.report)
+        if not args.quiet:
+            print(f"wrote {args.report}")
+    if args.out:
+        save_trajectory(trajectory, model, args.out)
+        if not args.quiet:
+            print(f"wrote {args.out}")
+    if args.rrd:
+        from ..pipelines.rrd import log_trajectory
+
+        start = time.perf_counter()
+        targets = recording_targets(recording, links, dtype=model.dtype, device=model.device)
+        log_trajectory(args.rrd, model, links, trajectory, targets, urdf=args.urdf or model_urdf(args.model),
+                       progress=not args.quiet)
+        if not args.quiet:
+            print(f"wrote {args.rrd} in {time.perf_counter() - start:.1f} s; open it with: rerun {args.rrd}")
+    if report["interrupted"]:
+        print(f"torchik track: interrupted; the outputs hold the {report['frames']} frames tracked", file=sys.stderr)
+        return 130
+    return 0
+
+
+def _print_report(report: dict, source: str, model_name: str) -> None:
+    m, r, st = report["mnte"], report["angular_velocity_rmse"], report["step_time_ms"]
+    print(f"tracked {source} with {model_name}: {report['frames']} frames in {report['wall_time_s']:.1f} s")
+    if m:
+        print(f"    MNTE after {report['transient_s']:.0f} s: median {m['median']:.2e}, p99 {m['p99']:.2e}")
+        print(f"    angular velocity RMSE: median {r['median']:.2e} rad/s, p99 {r['p99']:.2e} rad/s")
+    if "joint_error_rad" in report:
+        print(f"    joint error against ground truth: max {report['joint_error_rad']['max']:.2e} rad")
+    print(f"    step time: median {st['median']:.2f} ms, p99 {st['p99']:.2f} ms; "
+          f"QP fallbacks {report['qp_fallbacks']}, dropped targets {report['dropped_targets']}")

@@ -1,0 +1,81 @@
+"""What the tracker consumes and returns: the state, the targets over time, a step's diagnostics,
+a tracked trajectory."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+
+from .targets import Targets
+
+
+@dataclass
+class State:
+    """The configuration and its velocity. base_position [B,3]; base_rotation [B,3,3];
+    joint_positions [B,n]; velocity [B,6+n] = (p_dot_B, omega_B world, s_dot)."""
+
+    base_position: torch.Tensor
+    base_rotation: torch.Tensor
+    joint_positions: torch.Tensor
+    velocity: torch.Tensor
+
+    def clone(self) -> "State":
+        return State(*(t.clone() for t in vars(self).values()))
+
+
+@dataclass(frozen=True)
+class StepDiagnostics:
+    """What a step did, per subject.
+
+    mnte: [B] mean of 1 - cos(angle) over the orientation targets used, state and targets at the
+    start of the step;
+    residual_norm: [B,n_p+n_o] |r| per target (m for positions, sin(angle) for orientations);
+    active_constraints: [B] bounds and linear limits active in the QP's solution;
+    solved: [B] False where the QP failed and the clipped fallback was used;
+    dropped: [B] non-finite targets dropped; projected: [B] target rotations projected onto SO(3);
+    step_time: seconds for the whole batch, of which kinematics_time (the kinematics calls) and
+    qp_time (the QP backend's solve).
+    """
+
+    mnte: torch.Tensor
+    residual_norm: torch.Tensor
+    active_constraints: torch.Tensor
+    solved: torch.Tensor
+    dropped: torch.Tensor
+    projected: torch.Tensor
+    step_time: float
+    kinematics_time: float = 0.0
+    qp_time: float = 0.0
+
+
+@dataclass(frozen=True)
+class TargetSequence:
+    """Targets over time: time [T] s (strictly increasing); fields as Targets with a leading T."""
+
+    time: torch.Tensor
+    position: torch.Tensor
+    linear_velocity: torch.Tensor
+    rotation: torch.Tensor
+    angular_velocity: torch.Tensor
+
+    def __len__(self) -> int:
+        return self.time.shape[0]
+
+    def __getitem__(self, k: int) -> Targets:
+        return Targets(self.position[k], self.linear_velocity[k], self.rotation[k], self.angular_velocity[k])
+
+
+@dataclass
+class Trajectory:
+    """A tracked sequence: time [T]; base_position [T,B,3]; base_rotation [T,B,3,3];
+    joint_positions [T,B,n]; velocity [T,B,6+n]; and the step diagnostics stacked over time
+    (mnte [T,B], residual_norm [T,B,n_t], active_constraints [T,B], solved [T,B], dropped [T,B],
+    projected [T,B], step_time [T])."""
+
+    time: torch.Tensor
+    base_position: torch.Tensor
+    base_rotation: torch.Tensor
+    joint_positions: torch.Tensor
+    velocity: torch.Tensor
+    diagnostics: dict[str, torch.Tensor] = field(default_factory=dict)

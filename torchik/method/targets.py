@@ -1,0 +1,120 @@
+"""Measured targets for one time step, and their cleaning at the tracker's boundary.
+
+A step is driven by `n_p` position targets (world position and linear velocity of a link
+origin) and `n_o` orientation targets (world rotation and world angular velocity of a link),
+as in the paper: a position target on the base link and an orientation target on every
+tracked link.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from . import so3
+from ..errors import InputError
+
+
+@dataclass(frozen=True)
+class Targets:
+    """Targets at one instant for a batch of B subjects.
+
+    position: [B,n_p,3] m, world; linear_velocity: [B,n_p,3] m/s, world;
+    rotation: [B,n_o,3,3] link-to-world; angular_velocity: [B,n_o,3] rad/s, world.
+    """
+
+    position: torch.Tensor
+    linear_velocity: torch.Tensor
+    rotation: torch.Tensor
+    angular_velocity: torch.Tensor
+
+    @property
+    def batch(self) -> int:
+        return self.rotation.shape[0] if self.rotation.numel() else self.position.shape[0]
+
+    def to(self, dtype=None, device=None) -> "Targets":
+        return Targets(*(t.to(dtype=dtype, device=device) for t in vars(self).values()))
+
+
+
+@dataclass(frozen=True)
+class CleanTargets:
+    """Targets ready for a step, with what cleaning did.
+
+    position_valid: [B,n_p] bool; orientation_valid: [B,n_o] bool (NaN or Inf: dropped this step);
+    dropped: [B] targets dropped; projected: [B] rotations projected back onto SO(3);
+    all_valid: no target was dropped.
+    """
+
+    targets: Targets
+    position_valid: torch.Tensor
+    orientation_valid: torch.Tensor
+    dropped: torch.Tensor
+    projected: torch.Tensor
+    all_valid: bool = True
+
+
+def check_targets(targets: Targets, n_position: int, n_orientation: int, dtype: torch.dtype,
+                  device: torch.device, batch: int | None = None) -> None:
+    """Shapes, dtype and device, with a message that says what was expected."""
+    B = batch if batch is not None else targets.batch
+    expected = dict(position=(B, n_position, 3), linear_velocity=(B, n_position, 3),
+                    rotation=(B, n_orientation, 3, 3), angular_velocity=(B, n_orientation, 3))
+    for name, shape in expected.items():
+        t = getattr(targets, name)
+        if not isinstance(t, torch.Tensor) or tuple(t.shape) != shape:
+            got = list(t.shape) if isinstance(t, torch.Tensor) else type(t).__name__
+            raise InputError(f"targets.{name}: expected shape {list(shape)}, got {got}")
+        if t.dtype != dtype or t.device != device:
+            raise InputError(f"targets.{name}: expected {dtype} on {device}, got {t.dtype} on {t.device}")
+
+
+def clean_targets(targets: Targets, project_tolerance: float = 1e-2, orthonormal_tolerance: float = 1e-9) -> CleanTargets:
+    """Drop non-finite targets for this step and project nearly orthonormal rotations onto SO(3).
+
+    A rotation with `||R^T R - I|| > project_tolerance` (Frobenius) is not a rotation that noise
+    or rounding could explain: InputError, naming the subject and target.
+    """
+    position, linear_velocity = targets.position, targets.linear_velocity
+    rotation, angular_velocity = targets.rotation, targets.angular_velocity
+    B, n_p, n_o = position.shape[0], position.shape[1], rotation.shape[1]
+    eye = so3.identity(rotation.dtype, rotation.device)
+    orthonormal_tolerance = max(orthonormal_tolerance, 100 * torch.finfo(rotation.dtype).eps)  # float32 rounding
+    deviation = rotation.transpose(-1, -2) @ rotation - eye
+    # one number for the usual case, one synchronisation: the largest deviation from
+    # orthonormality, NaN if any target is not finite (NaN and Inf propagate through the sums)
+    worst = deviation.abs().amax() if n_o else rotation.new_zeros(())
+    # alpha 0 keeps NaN and Inf (0 * Inf is NaN); a finite sum that overflows only takes the slow path
+    worst = float(torch.add(worst, torch.cat((position, linear_velocity, angular_velocity), 1).sum(), alpha=0.0))
+    all_valid = math.isfinite(worst)
+    if all_valid:
+        p_ok = torch.ones(B, n_p, dtype=torch.bool, device=position.device)
+        o_ok = torch.ones(B, n_o, dtype=torch.bool, device=position.device)
+    else:
+        p_ok = torch.isfinite(position).all(-1) & torch.isfinite(linear_velocity).all(-1)
+        o_ok = torch.isfinite(rotation).flatten(-2).all(-1) & torch.isfinite(angular_velocity).all(-1)
+        position = torch.where(p_ok[..., None], position, 0.0)
+        linear_velocity = torch.where(p_ok[..., None], linear_velocity, 0.0)
+        rotation = torch.where(o_ok[..., None, None], rotation, eye)
+        angular_velocity = torch.where(o_ok[..., None], angular_velocity, 0.0)
+        all_valid = bool(p_ok.all()) and bool(o_ok.all())
+        deviation = rotation.transpose(-1, -2) @ rotation - eye
+        worst = float(deviation.abs().max()) if n_o else 0.0
+    projected = torch.zeros(B, dtype=torch.long, device=position.device)
+    if n_o and worst > orthonormal_tolerance / 3:
+        error = deviation.flatten(-2).norm(dim=-1)  # [B,n_o]
+        far = error > project_tolerance
+        if bool(far.any()):
+            b, i = (int(x) for x in far.nonzero()[0])
+            raise InputError(
+                f"target rotation {i} of subject {b} is not a rotation (||R^T R - I|| = {float(error[b, i]):.3g} > "
+                f"{project_tolerance}); give rotation matrices (link to world)"
+            )
+        near = error > orthonormal_tolerance
+        rotation = torch.where(near[..., None, None], so3.project(rotation), rotation)
+        projected = near.sum(-1)
+    cleaned = Targets(position, linear_velocity, rotation, angular_velocity)
+    dropped = projected.new_zeros(B) if all_valid else (~p_ok).sum(-1) + (~o_ok).sum(-1)
+    return CleanTargets(cleaned, p_ok, o_ok, dropped, projected, all_valid)

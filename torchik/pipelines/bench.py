@@ -1,0 +1,294 @@
+"""`torchik bench`: subject-steps per second of the whole tracking step, batched, against the
+per-subject loops a user could assemble from existing libraries today.
+
+For each model (Human66, Human48, iCub) and batch size B, the tracker (kinematics, residuals, the
+constrained QP with the batched backend, integration) steps B subjects through a walking-like
+motion (`periodic_motion`, every subject with its own phases), and the throughput is B times the
+steps per second. In the same run, one subject at a time:
+
+- ``torchik+piqp``: torchik's tracker for one subject with the PIQP backend (qpsolvers);
+- ``pinocchio+daqp`` and ``pinocchio+piqp``: pinocchio's kinematics (forwardKinematics,
+  computeJointJacobians, frame Jacobians in LOCAL_WORLD_ALIGNED), the same residuals, gains,
+  damping and tanh velocity bounds (and iCub's coupled rows), the QP by daqp or PIQP through
+  qpsolvers, and pinocchio's integrate on the configuration manifold: the fastest CPU pipeline
+  we could assemble from existing libraries.
+
+The pinocchio loop uses torchik's residual and feed-forward (the second-order scheme's) but the
+Jacobian at the step's start, not mid-step (which would cost a second kinematics pass): a cheaper
+step than torchik's, tracking to about 1e-5 MNTE where torchik reaches 1e-9. Every pipeline's final
+orientation error is printed beside its speed, so the comparison is between working pipelines.
+Results: a table on stdout and, with --json, a file.
+
+    torchik bench [--models human66 human48 icub] [--batch 1 64 1024 8192] [--json bench.json]
+    python experiments/bench_step.py ...   (the same)
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+BATCHES = (1, 64, 1024, 8192)
+MODEL_NAMES = ("human66", "human48", "icub")
+LOOPS = ("torchik+piqp", "pinocchio+daqp", "pinocchio+piqp")
+GAIN, DAMPING, RATE = 20.0, 1e-9, 100.0
+
+
+@dataclass
+class Measurement:
+    model: str
+    pipeline: str  # "torchik batched" or one of LOOPS
+    batch: int
+    steps: int
+    seconds: float
+    subject_steps_per_second: float
+    active_constraints_per_subject: float | None = None  # mean over the timed steps
+    iterations_mean: float | None = None  # batched backend: active-set iterations per step
+    rescued_fraction: float | None = None  # batched backend: subjects solved by the interior point
+    unsolved_fraction: float | None = None  # subjects that fell back to the clipped velocity
+    final_mnte: float | None = None  # the tracking error at the end, to show the pipeline works
+
+
+def _motion(model, batch: int, steps: int, seed: int = 0):
+    from ..synthetic.motion import periodic_motion
+
+    return periodic_motion(model, (steps + 1) / RATE, RATE, batch=batch, seed=seed, dtype=model.dtype)
+
+
+def bench_batched(name: str, batch: int, device: str, dtype, min_seconds: float, max_steps: int,
+                  warmup: int = 5) -> Measurement:
+    """The tracker's whole step for `batch` subjects at once; timed over up to `max_steps` steps
+    or `min_seconds`, whichever comes first, after `warmup` steps."""
+    from ..method.models import TRACKED_LINKS, load_model
+    from ..method.tracker import DynamicalIK
+
+    model, links = load_model(name, dtype=dtype, device=device), TRACKED_LINKS[name]
+    # enough steps for min_seconds at a first guess of the speed (1e5 subject-steps/s), at most max_steps
+    max_steps = max(3, min(max_steps, int(1e5 * min_seconds / batch) + 1))
+    motion = _motion(model, batch, warmup + max_steps)
+    sequence = _targets(model, motion, links, device)
+    tracker = DynamicalIK(model, links, position_gain=GAIN, orientation_gain=GAIN, dt=1 / RATE, damping=DAMPING,
+                          backend="batched")
+    state = motion.state(0)
+    tracker.reset(type(state)(*(x.to(device) for x in vars(state).values())), batch=batch)
+    for k in range(warmup):
+        tracker.step(sequence[k])
+    _synchronize(device)
+    iterations, rescued, active, unsolved, steps = 0, 0, 0.0, 0, 0
+    start = time.perf_counter()
+    while steps < max_steps:
+        _, diagnostics = tracker.step(sequence[warmup + steps])
+        steps += 1
+        iterations += tracker.backend.iterations
+        rescued += tracker.backend.rescued
+        active += float(diagnostics.active_constraints.double().mean())
+        unsolved += int((~diagnostics.solved).sum())
+        if time.perf_counter() - start > min_seconds:
+            break
+    _synchronize(device)
+    seconds = time.perf_counter() - start
+    return Measurement(name, "torchik batched", batch, steps, seconds, batch * steps / seconds, active / steps,
+                       iterations / steps, rescued / (batch * steps), unsolved / (batch * steps),
+                       float(diagnostics.mnte.max()))
+
+
+def _targets(model, motion, links, device: str):
+    """The motion's targets on `device`."""
+    from ..synthetic.motion import Motion, targets_from_motion
+
+    motion = Motion(*(x.to(model.device) for x in vars(motion).values()))
+    return targets_from_motion(model, motion, links)
+
+
+def _synchronize(device: str) -> None:
+    if torch.device(device).type == "cuda":
+        torch.cuda.synchronize()
+
+
+def bench_torchik_loop(name: str, steps: int, warmup: int = 10) -> Measurement:
+    """torchik's tracker for one subject with the PIQP backend, step after step."""
+    from ..method.models import TRACKED_LINKS, load_model
+    from ..synthetic.motion import targets_from_motion
+    from ..method.tracker import DynamicalIK
+
+    model, links = load_model(name), TRACKED_LINKS[name]
+    motion = _motion(model, 1, warmup + steps)
+    sequence = targets_from_motion(model, motion, links)
+    tracker = DynamicalIK(model, links, position_gain=GAIN, orientation_gain=GAIN, dt=1 / RATE, damping=DAMPING,
+                          backend="piqp")
+    tracker.reset(motion.state(0), batch=1)
+    for k in range(warmup):
+        tracker.step(sequence[k])
+    active = 0.0
+    start = time.perf_counter()
+    for k in range(warmup, warmup + steps):
+        _, diagnostics = tracker.step(sequence[k])
+        active += float(diagnostics.active_constraints.double().mean())
+    seconds = time.perf_counter() - start
+    return Measurement(name, "torchik+piqp", 1, steps, seconds, steps / seconds, active / steps,
+                       final_mnte=float(diagnostics.mnte.max()))
+
+
+class PinocchioTracker:
+    """The same dynamical IK step assembled from pinocchio and a QP solver, one subject.
+
+    Velocities are pinocchio's (base twist in the base frame): the same QP up to a rotation of the
+    base's variables, which the damping and the joint bounds do not see."""
+
+    def __init__(self, name: str, solver: str):
+        import pinocchio as pin
+
+        from ..method.models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_model
+
+        self.pin, self.solver = pin, solver
+        if name == "icub":
+            text = open(icub_urdf_path()).read()
+        else:
+            text = human_urdf(int(name[-2:]))
+        self.model = pin.buildModelFromXML(text, pin.JointModelFreeFlyer())
+        self.data = self.model.createData()
+        ours = load_model(name)
+        self.links = TRACKED_LINKS[name]
+        self.frames = [self.model.getFrameId(link) for link in self.links]
+        self.base_frame = self.model.getFrameId(ours.base_link)
+        # joint order: ours -> pinocchio's velocity index
+        self.joint_v = np.array([self.model.joints[self.model.getJointId(j)].idx_v for j in ours.joint_names])
+        self.joint_q = np.array([self.model.joints[self.model.getJointId(j)].idx_q for j in ours.joint_names])
+        nv = self.model.nv
+        self.lower, self.upper = np.full(nv, -np.inf), np.full(nv, np.inf)
+        self.lower[self.joint_v] = ours.lower.numpy()
+        self.upper[self.joint_v] = ours.upper.numpy()
+        self.A = self.b = None
+        if ours.linear_limits is not None:
+            self.A = np.zeros((ours.linear_limits.A.shape[0], nv))
+            self.A[:, self.joint_v] = ours.linear_limits.A.numpy()
+            self.b = ours.linear_limits.b.numpy()
+        from ..method.limits import LimitSettings
+
+        limits = LimitSettings()
+        self.max_rate, self.limit_gain = limits.max_rate, limits.gain
+        self.ours = ours
+
+    def configuration(self, p, R, s) -> np.ndarray:
+        q = np.zeros(self.model.nq)
+        q[:3] = p
+        q[3:7] = self.pin.Quaternion(R).coeffs()  # x, y, z, w
+        q[self.joint_q] = s
+        return q
+
+    def _bound(self, gap):
+        return self.max_rate * np.tanh(self.limit_gain * gap)
+
+    def step(self, q, p_target, v_target, R_targets, w_targets, dt):
+        """One step from q (at the targets' instant): the residual against p_target, R_targets, the
+        feed-forward v_target, w_targets (torchik's default scheme passes the mean of the two
+        samples the step spans). Returns the next configuration."""
+        pin, model, data = self.pin, self.model, self.data
+        pin.forwardKinematics(model, data, q)
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        frame = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+        rows, velocity = [], []
+        J_base = pin.getFrameJacobian(model, data, self.base_frame, frame)
+        rows.append(J_base[:3])
+        velocity.append(v_target + GAIN * (p_target - data.oMf[self.base_frame].translation))
+        for f, R_t, w_t in zip(self.frames, R_targets, w_targets):  # the loop a pinocchio user writes
+            R_hat = data.oMf[f].rotation
+            E = R_hat.T @ R_t
+            residual = R_hat @ (0.5 * np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]]))
+            rows.append(pin.getFrameJacobian(model, data, f, frame)[3:])
+            velocity.append(w_t + GAIN * residual)
+        J, v = np.vstack(rows), np.concatenate(velocity)
+        H = J.T @ J + DAMPING * np.eye(model.nv)
+        g = -J.T @ v
+        s = q[self.joint_q]
+        lb, ub = self.lower.copy(), self.upper.copy()
+        lb[self.joint_v] = np.minimum(-self._bound(s - self.lower[self.joint_v]), self._bound(self.upper[self.joint_v] - s))
+        ub[self.joint_v] = self._bound(self.upper[self.joint_v] - s)
+        G = h = None
+        if self.A is not None:
+            norm = np.linalg.norm(self.A, axis=1)
+            G, h = self.A, norm * self._bound((self.b - self.A[:, self.joint_v] @ s) / norm)
+        import qpsolvers
+
+        nu = qpsolvers.solve_qp(H, g, G, h, lb=lb, ub=ub, solver=self.solver)
+        if nu is None:
+            raise RuntimeError(f"{self.solver} failed on a step")
+        return pin.integrate(model, q, nu * dt)
+
+    def orientation_error(self, q, R_targets) -> float:
+        self.pin.framesForwardKinematics(self.model, self.data, q)
+        errors = [1 - (np.trace(self.data.oMf[f].rotation.T @ R) - 1) / 2 for f, R in zip(self.frames, R_targets)]
+        return float(np.mean(errors))
+
+
+def bench_pinocchio_loop(name: str, solver: str, steps: int, warmup: int = 10) -> Measurement:
+    from ..method.models import TRACKED_LINKS
+    from ..synthetic.motion import targets_from_motion
+
+    tracker = PinocchioTracker(name, solver)
+    motion = _motion(tracker.ours, 1, warmup + steps + 1)
+    sequence = targets_from_motion(tracker.ours, motion, TRACKED_LINKS[name])
+    as_numpy = lambda x: x[:, 0].numpy()  # noqa: E731
+    p, v = as_numpy(sequence.position)[:, 0], as_numpy(sequence.linear_velocity)[:, 0]
+    R, w = as_numpy(sequence.rotation), as_numpy(sequence.angular_velocity)
+    q = tracker.configuration(motion.base_position[0, 0].numpy(), motion.base_rotation[0, 0].numpy(),
+                              motion.joint_positions[0, 0].numpy())
+    dt = 1 / RATE
+    # torchik's second-order scheme: q at sample k-1 against the targets of k-1, the mean velocity
+    # of k-1 and k fed forward; q then estimates sample k
+    mean = lambda x, k: (x[k - 1] + x[k]) / 2  # noqa: E731
+    for k in range(1, warmup + 1):
+        q = tracker.step(q, p[k - 1], mean(v, k), R[k - 1], mean(w, k), dt)
+    start = time.perf_counter()
+    for k in range(warmup + 1, warmup + steps + 1):
+        q = tracker.step(q, p[k - 1], mean(v, k), R[k - 1], mean(w, k), dt)
+    seconds = time.perf_counter() - start
+    error = tracker.orientation_error(q, R[warmup + steps])
+    return Measurement(name, f"pinocchio+{solver}", 1, steps, seconds, steps / seconds, final_mnte=error)
+
+
+def run(models=MODEL_NAMES, batches=BATCHES, device: str = "cpu", dtype=torch.float64, loops: bool = True,
+        loop_steps: int = 200, min_seconds: float = 2.0, max_steps: int = 50, progress: bool = True) -> list[Measurement]:
+    """Every measurement of the benchmark, in the order of the table."""
+    import qpsolvers
+
+    plan = [(name, "batched", B) for name in models for B in batches]
+    if loops:
+        plan += [(name, loop, 1) for name in models for loop in LOOPS
+                 if loop == "torchik+piqp" or loop.split("+")[1] in qpsolvers.available_solvers]
+    if progress:
+        from tqdm import tqdm
+
+        plan = tqdm(plan, desc="bench", unit="run", leave=False)
+    results = []
+    for name, pipeline, B in plan:
+        if progress:
+            plan.set_postfix_str(f"{name} {pipeline} B={B}")
+        if pipeline == "batched":
+            results.append(bench_batched(name, B, device, dtype, min_seconds, max_steps))
+        elif pipeline == "torchik+piqp":
+            results.append(bench_torchik_loop(name, loop_steps))
+        else:
+            results.append(bench_pinocchio_loop(name, pipeline.split("+")[1], loop_steps))
+    return results
+
+
+def table(results: list[Measurement]) -> str:
+    lines = [f"{'model':8s} {'pipeline':16s} {'B':>6s} {'subject-steps/s':>16s} {'vs best loop':>12s} "
+             f"{'ms/step':>8s} {'active/subj':>11s} {'iters':>6s} {'rescued':>8s} {'final MNTE':>10s}"]
+    best = {}
+    for r in results:
+        if r.pipeline != "torchik batched":
+            best[r.model] = max(best.get(r.model, 0.0), r.subject_steps_per_second)
+    for r in results:
+        ratio = f"{r.subject_steps_per_second / best[r.model]:.1f}x" if r.model in best else "-"
+        fmt = lambda v, f: "-" if v is None else format(v, f)  # noqa: E731
+        lines.append(f"{r.model:8s} {r.pipeline:16s} {r.batch:>6d} {r.subject_steps_per_second:>16,.0f} {ratio:>12s} "
+                     f"{1e3 * r.seconds / r.steps:>8.2f} {fmt(r.active_constraints_per_subject, '.2f'):>11s} "
+                     f"{fmt(r.iterations_mean, '.2f'):>6s} {fmt(r.rescued_fraction, '.1%'):>8s} "
+                     f"{fmt(r.final_mnte, '.1e'):>10s}")
+    return "\n".join(lines)

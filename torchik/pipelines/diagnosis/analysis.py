@@ -1,0 +1,319 @@
+"""Residual analysis of tracked recordings: what the model did not explain, where and when.
+
+For a batch of B recordings of the same length tracked with one model (links L, joints n):
+
+- r [T,B,L,3]: orientation residual sk(R_m R_hat^T)^vee, world frame (the tracker's r_o; |r| is
+  sin of the angle), and r_link = R_hat^T r, the same in the estimated link frame;
+- u [T,B,L,3]: velocity residual w_m - w_hat (world), w_hat = J nu of the estimate;
+- e [T,B,L,3]: the disagreement of a sensor's two streams, its gyro against the rate of its own
+  orientations: S(w_m) - w_fd(R_m), S the Simpson average (1,4,1)/6 that a central difference of
+  orientations computes, so that e is O(dt^4) on consistent streams. It does not depend on the
+  model (it is u - dr/dt to first order) and carries the gyro's own effects;
+- position: r_p = p_m - p_hat [T,B,3] of the base link, and e_p = S(v_m) - dp_m/dt [T,B,3];
+- joint positions s [T,B,n] and active-limit flags [T,B,n];
+- at up to `max_samples` sample times: the task Jacobian J [S,B,R,6+n] (R = 3 position rows of
+  the base, then 3 orientation rows per link; the rows of a target missing at that time zero, as
+  the tracker drops it) and A = (J^T J + lambda I)^-1. With them M = I - J A J^T projects a target
+  inconsistency delta onto the residual it leaves, r = M delta (the steady state of the tracker's
+  least squares): directions of delta that the joints can follow leave none and cannot be seen.
+  Effects are fitted against M (placement.py, joints.py), on the rows whose targets are present.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from ...method import so3
+from ...io.recording import Recording, angular_velocity_from_orientations
+from ...method.kinematics import KinematicModel
+from ..evaluation import link_motion
+from ...method.tracker import DynamicalIK
+from ...method.state import State, TargetSequence, Trajectory
+
+NO_LIMIT = 19.9  # rad: a range this wide is no limit (the URDFs write +-10 rad for none)
+LIMIT_TOLERANCE = 0.01  # rad: a joint this close to a finite limit is at it
+
+
+def simpson(x: torch.Tensor) -> torch.Tensor:
+    """(x_{k-1} + 4 x_k + x_{k+1}) / 6 along dim 0, the ends kept: the mean of x over [t-dt, t+dt]
+    that a central difference of its integral sees. x: [T,...] -> [T,...]."""
+    if x.shape[0] < 3:
+        return x.clone()
+    out = x.clone()
+    out[1:-1] = (x[:-2] + 4.0 * x[1:-1] + x[2:]) / 6.0
+    return out
+
+
+def central_difference(x: torch.Tensor, time: torch.Tensor) -> torch.Tensor:
+    """dx/dt by central differences (one-sided at the ends). x: [T,...]; time [T] -> [T,...]."""
+    ahead, behind = torch.cat((x[1:], x[-1:])), torch.cat((x[:1], x[:-1]))
+    span = torch.cat((time[1:], time[-1:])) - torch.cat((time[:1], time[:-1]))
+    return (ahead - behind) / span.view(-1, *([1] * (x.dim() - 1)))
+
+
+def lowpass(x: torch.Tensor, time: torch.Tensor, cutoff: float) -> torch.Tensor:
+    """Zero-phase low-pass of x [T,...] along time: the spectrum kept below 0.7 cutoff, tapered by a
+    raised cosine to zero at cutoff (Hz). The ends are mirrored first, so a constant stays a
+    constant. Linear and time-invariant: fitting lowpass(e) = lowpass(X) theta is fitting e = X theta
+    without the high-frequency noise of differentiated orientations."""
+    T = x.shape[0]
+    if T < 8:
+        return x.clone()
+    rate = 1.0 / float(torch.diff(time).median())
+    padded = torch.cat((x.flip(0), x, x.flip(0)))
+    f = torch.fft.rfftfreq(3 * T, d=1.0 / rate).to(x.dtype)
+    gain = torch.clamp((cutoff - f) / (0.3 * cutoff), 0.0, 1.0)
+    gain = 0.5 - 0.5 * torch.cos(torch.pi * gain)
+    spectrum = torch.fft.rfft(padded, dim=0) * gain.view(-1, *([1] * (x.dim() - 1)))
+    return torch.fft.irfft(spectrum, n=3 * T, dim=0)[T:2 * T]
+
+
+@dataclass
+class Analysis:
+    """Residuals of B tracked recordings (module docstring). Measured: R_m [T,B,L,3,3], w_m
+    [T,B,L,3], p_m, v_m [T,B,3]; estimated: R_hat, w_hat, p_hat; residuals r, r_link, u, e, r_p,
+    e_p; valid [T,B,L] (both streams finite); derived [B,L] (the angular velocity is the central
+    difference of the orientations, not a gyro); velocity_derived [B] (the base velocity is the
+    central difference of its positions); s, active [T,B,n]; sample [S] time indices of J
+    [S,B,R,6+n] and A [S,B,6+n,6+n]; rows [S,B,R] (the row's target is present); joint_axes
+    [S,B,n,3] (world)."""
+
+    model: KinematicModel
+    links: tuple[str, ...]
+    time: torch.Tensor
+    R_m: torch.Tensor
+    w_m: torch.Tensor
+    p_m: torch.Tensor
+    v_m: torch.Tensor
+    R_hat: torch.Tensor
+    w_hat: torch.Tensor
+    p_hat: torch.Tensor
+    r: torch.Tensor
+    r_link: torch.Tensor
+    u: torch.Tensor
+    e: torch.Tensor
+    r_p: torch.Tensor
+    e_p: torch.Tensor
+    valid: torch.Tensor
+    derived: torch.Tensor
+    velocity_derived: torch.Tensor
+    s: torch.Tensor
+    active: torch.Tensor
+    sample: torch.Tensor
+    J: torch.Tensor
+    A: torch.Tensor
+    rows: torch.Tensor
+    joint_axes: torch.Tensor
+    trajectory: Trajectory = field(repr=False)
+
+    @property
+    def batch(self) -> int:
+        return self.R_m.shape[1]
+
+    def orientation_rows(self, link: int) -> slice:
+        """The rows of link `link`'s orientation in J (after the base's 3 position rows)."""
+        return slice(3 + 3 * link, 6 + 3 * link)
+
+    def stacked_residual(self) -> torch.Tensor:
+        """[S,B,R] the residual at the sample times, rows as J's (position, then orientations)."""
+        k = self.sample
+        r = torch.cat((self.r_p[k], self.r[k].flatten(-2)), dim=-1)
+        return torch.where(self.rows, r, 0.0)
+
+    def project(self, b: int, X: torch.Tensor, J: torch.Tensor | None = None, A: torch.Tensor | None = None) -> torch.Tensor:
+        """M X = X - J A J^T X for subject b, X [...,S,R,k] (rows as J's) -> the same, zero on the
+        rows of missing targets. J [S,R,C], A [S,C,C]: others than the analysis' (joints.py)."""
+        J = self.J[:, b] if J is None else J
+        A = self.A[:, b] if A is None else A
+        return (X - J @ (A @ (J.transpose(-1, -2) @ X))) * self.rows[:, b, :, None].to(X.dtype)
+
+
+def sequence_of(recordings: Sequence[Recording], links, dtype=torch.float64) -> TargetSequence:
+    """The tracker's targets for B recordings of the same length [T,B,...]: orientations and gyros of
+    `links`, the base link's position and velocity."""
+    T = len(recordings[0].time)
+    for rec in recordings:
+        if len(rec.time) != T:
+            raise ValueError("recordings tracked as one batch must have the same length")
+    idx = [[rec.links.index(name) for name in links] for rec in recordings]
+    t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=dtype)  # noqa: E731
+    R = torch.stack([t(rec.orientation[:, i]) for rec, i in zip(recordings, idx)], dim=1)
+    w = torch.stack([t(rec.angular_velocity[:, i]) for rec, i in zip(recordings, idx)], dim=1)
+    p = torch.stack([t(rec.base_position) for rec in recordings], dim=1)[:, :, None]
+    v = torch.stack([t(rec.base_linear_velocity) for rec in recordings], dim=1)[:, :, None]
+    return TargetSequence(t(recordings[0].time), p, v, R, w)
+
+
+def track(model: KinematicModel, recordings: Sequence[Recording], links, gain: float = 20.0,
+          progress: bool = False, settle: float = 0.5) -> Trajectory:
+    """Track B recordings as one batch (the batched backend when B > 1), from a state at rest in the
+    first frame's posture: the tracker run for `settle` seconds on the first targets held still.
+    Started from the zero posture instead, a short recording would be mostly the transient."""
+    sequence = sequence_of(recordings, links, model.dtype)
+    dt = float(np.median(np.diff(recordings[0].time))) if len(recordings[0].time) > 1 else 0.01
+    tracker = DynamicalIK(model, links, position_gain=gain, orientation_gain=gain, dt=dt,
+                          backend="batched" if len(recordings) > 1 else "auto")
+    n = max(2, int(round(settle / dt)))
+    first = sequence[0]
+    still = lambda x: x[None].expand(n, *x.shape)  # noqa: E731
+    held = tracker.run(TargetSequence(sequence.time[0] + dt * torch.arange(n - 1, -1, -1.0, dtype=sequence.time.dtype).neg(),
+                                      still(first.position), torch.zeros_like(still(first.linear_velocity)),
+                                      still(first.rotation), torch.zeros_like(still(first.angular_velocity))))
+    rest = State(held.base_position[-1], held.base_rotation[-1], held.joint_positions[-1], torch.zeros_like(held.velocity[-1]))
+    return tracker.run(sequence, initial=rest, progress=progress)
+
+
+def analyse(model: KinematicModel, recordings: Sequence[Recording], links, trajectory: Trajectory | None = None,
+            gain: float = 20.0, max_samples: int = 300, progress: bool = False) -> Analysis:
+    """Track (unless `trajectory` is given) and compute the residuals of module docstring."""
+    links = tuple(links)
+    if trajectory is None:
+        trajectory = track(model, recordings, links, gain, progress)
+    seq = sequence_of(recordings, links, model.dtype)
+    time = seq.time
+    R_hat, w_hat = link_motion(model, trajectory, links)
+    R_m, w_m = seq.rotation, seq.angular_velocity
+    valid = torch.isfinite(R_m).flatten(-2).all(-1) & torch.isfinite(w_m).all(-1)
+    R_safe = torch.where(valid[..., None, None], R_m, R_hat)
+    w_safe = torch.where(valid[..., None], w_m, w_hat)
+    r = so3.skew_vee(R_safe @ R_hat.transpose(-1, -2))
+    r_link = (R_hat.transpose(-1, -2) @ r[..., None]).squeeze(-1)
+    T, B, L = R_safe.shape[:3]  # every subject's links at once: [T,B*L,3,3]
+    w_fd = torch.from_numpy(angular_velocity_from_orientations(R_safe.reshape(T, B * L, 3, 3).numpy(),
+                                                               time.numpy())).reshape(T, B, L, 3)
+    e = simpson(w_safe) - w_fd
+    # a sample next to a missing one has no central difference
+    near = valid & torch.cat((valid[:1], valid[:-1])) & torch.cat((valid[1:], valid[-1:]))
+    valid = near & torch.isfinite(e).all(-1)
+    e = torch.where(valid[..., None], e, 0.0)
+    # an angular velocity computed from the orientations (C3D, BVH) is no gyro: nothing to find in it
+    mismatch = torch.where(valid[..., None], w_safe - w_fd, 0.0).square().sum((0, -1))
+    derived = mismatch <= 1e-12 * torch.where(valid[..., None], w_safe, 0.0).square().sum((0, -1)) + 1e-18
+    p_m, v_m = seq.position[:, :, 0], seq.linear_velocity[:, :, 0]
+    p_hat = trajectory.base_position
+    dp = central_difference(p_m, time)
+    e_p = simpson(v_m) - dp
+    both = torch.isfinite(e_p).all(-1, keepdim=True)
+    mismatch = torch.where(both, v_m - dp, 0.0).square().sum((0, -1))
+    velocity_derived = mismatch <= 1e-12 * torch.where(both, v_m, 0.0).square().sum((0, -1)) + 1e-18
+    s = trajectory.joint_positions
+    lower, upper = model.lower.to(s), model.upper.to(s)
+    finite = (upper - lower) < NO_LIMIT
+    active = finite & ((s <= lower + LIMIT_TOLERANCE) | (s >= upper - LIMIT_TOLERANCE))
+
+    T = len(time)
+    sample = torch.arange(0, T, max(1, -(-T // max_samples)))
+    J, axes = _task_jacobian(model, trajectory, links, sample)
+    rows = torch.cat((torch.isfinite(p_m[sample]).all(-1, keepdim=True).expand(-1, -1, 3),
+                      valid[sample].repeat_interleave(3, dim=-1)), dim=-1)  # [S,B,R]
+    J = J * rows[..., None].to(J.dtype)
+    A = inverse_normal(J)
+    return Analysis(model, links, time, R_m, w_m, p_m, v_m, R_hat, w_hat, p_hat, r, r_link, w_m - w_hat, e,
+                    p_m - p_hat, torch.nan_to_num(e_p), valid, derived, velocity_derived, s, active, sample, J, A, rows, axes, trajectory)
+
+
+def inverse_normal(J: torch.Tensor, damping: float = 1e-9) -> torch.Tensor:
+    """(J^T J + damping I)^-1 for J [...,R,C] -> [...,C,C]."""
+    return torch.linalg.inv(J.transpose(-1, -2) @ J + damping * torch.eye(J.shape[-1], dtype=J.dtype))
+
+
+def _task_jacobian(model: KinematicModel, trajectory: Trajectory, links, sample: torch.Tensor):
+    """J [S,B,3+3L,6+n] (base position rows, then each link's angular rows) and world joint axes
+    [S,B,n,3] at the sample times."""
+    B = trajectory.joint_positions.shape[1]
+    pick = lambda x: x[sample].reshape(-1, *x.shape[2:])  # noqa: E731
+    names = (model.base_link,) + tuple(links)
+    with torch.inference_mode():
+        kin = model(pick(trajectory.base_position), pick(trajectory.base_rotation), pick(trajectory.joint_positions),
+                    names, jacobian=True, joint_axes=True)
+        J = torch.cat((kin.jacobian[:, 0, :3], kin.jacobian[:, 1:, 3:].flatten(1, 2)), dim=1)
+    S = len(sample)
+    return J.reshape(S, B, *J.shape[1:]).clone(), kin.joint_axes.reshape(S, B, *kin.joint_axes.shape[1:]).clone()
+
+
+# ------------------------------------------------------------------------------ structure
+def autocorrelation_time(x: torch.Tensor, axis: int = 0) -> float:
+    """Integrated autocorrelation time of a series (Sokal's window: sum lags until 5 tau), >= 1.
+    x: [T,...] (the other dims averaged)."""
+    x = x.movedim(axis, 0).reshape(x.shape[axis], -1).double()
+    x = x - x.mean(0)
+    T = x.shape[0]
+    if T < 4:
+        return 1.0
+    f = torch.fft.rfft(x, n=2 * T, dim=0)
+    acf = torch.fft.irfft(f * f.conj(), dim=0)[:T].sum(-1)
+    if float(acf[0]) <= 0:
+        return 1.0
+    rho = acf / acf[0]
+    taus = 1.0 + 2.0 * torch.cumsum(rho[1:], 0)  # tau summed up to lag k = 1, 2, ...
+    lags = torch.arange(1, T, dtype=taus.dtype)
+    stop = torch.nonzero(lags >= 5.0 * taus)
+    tau = float(taus[stop[0, 0]] if len(stop) else taus[-1])
+    return float(min(max(tau, 1.0), T / 4.0))
+
+
+BANDS = ((0.0, 0.2), (0.2, 1.0), (1.0, 3.0), (3.0, 10.0), (10.0, float("inf")))  # Hz
+
+
+def link_summary(analysis: Analysis, b: int = 0, transient: float = 1.0) -> list[dict]:
+    """Per link of subject b: where the residual sits and what it follows. Keys: link, rms_deg (of
+    the orientation residual's angle), mean_link_deg [3] (its mean in the link frame), trend_deg_s
+    [3] (world-frame slope), dominant_axis (unit, link frame: the principal axis of r_link),
+    dominant_share (of the variance), corr_omega, corr_alpha (|correlation| of r with the angular
+    velocity and acceleration, world), corr_joint and joint (the largest |correlation| of a component
+    of r with the angle of a joint above the link, and that joint), band_hz (the band holding most
+    of r's power), gyro_rms (|e| rms, rad/s: the gyro against the orientations), velocity_rms (|u|
+    rms, rad/s)."""
+    time = analysis.time
+    keep = (time >= time[0] + transient) if float(time[-1] - time[0]) > 2 * transient else torch.ones_like(time, dtype=torch.bool)
+    rows = []
+    rate = 1.0 / float(torch.diff(time).median()) if len(time) > 1 else 1.0
+    above = analysis.model.select(analysis.links).ancestor_mask.bool()  # [L,n]
+    for i, name in enumerate(analysis.links):
+        ok = keep & analysis.valid[:, b, i]
+        if int(ok.sum()) < 4:
+            rows.append(dict(link=name, samples=int(ok.sum())))
+            continue
+        r, rl, t = analysis.r[ok, b, i], analysis.r_link[ok, b, i], time[ok]
+        w = analysis.w_hat[ok, b, i]
+        alpha = central_difference(w, t)
+        angle = torch.asin(r.norm(dim=-1).clamp(max=1.0))
+        centred = rl - rl.mean(0)
+        eigval, eigvec = torch.linalg.eigh(centred.T @ centred)
+        tc = t - t.mean()
+        trend = (tc[:, None] * r).sum(0) / tc.square().sum().clamp(min=1e-12)
+        corr = lambda x, y: float(((x - x.mean(0)) * (y - y.mean(0))).sum() / (  # noqa: E731
+            (x - x.mean(0)).norm() * (y - y.mean(0)).norm()).clamp(min=1e-12))
+        s = analysis.s[ok, b][:, above[i]]  # [t,m] the angles of the joints above
+        s, r0 = s - s.mean(0), r - r.mean(0)
+        joint_corr = (s.T @ r0).abs() / (s.norm(dim=0)[:, None] * r0.norm(dim=0)).clamp(min=1e-12)  # [m,3]
+        best = int(joint_corr.amax(-1).argmax()) if joint_corr.numel() else -1
+        power = torch.fft.rfft(r - r.mean(0), dim=0).abs().square().sum(-1)
+        freq = torch.fft.rfftfreq(r.shape[0], d=1.0 / rate)
+        band_power = [float(power[(freq >= lo) & (freq < hi)].sum()) for lo, hi in BANDS]
+        lo, hi = BANDS[int(np.argmax(band_power))]
+        rows.append(dict(
+            link=name, samples=int(ok.sum()), rms_deg=float(angle.square().mean().sqrt()) * 180 / np.pi,
+            mean_link_deg=(rl.mean(0) * 180 / np.pi).tolist(), trend_deg_s=(trend * 180 / np.pi).tolist(),
+            dominant_axis=eigvec[:, -1].tolist(), dominant_share=float(eigval[-1] / eigval.sum().clamp(min=1e-30)),
+            corr_omega=abs(corr(r, w)), corr_alpha=abs(corr(r, alpha)), band_hz=[lo, hi],
+            corr_joint=float(joint_corr.amax()) if best >= 0 else 0.0,
+            joint=analysis.model.joint_names[int(torch.nonzero(above[i])[best])] if best >= 0 else "",
+            gyro_rms=float(analysis.e[ok, b, i].square().sum(-1).mean().sqrt()),
+            velocity_rms=float(analysis.u[ok, b, i].square().sum(-1).mean().sqrt())))
+    return rows
+
+
+def joint_summary(analysis: Analysis, b: int = 0) -> list[dict]:
+    """Joints that sat at a finite limit: name, fraction of the time, and the side."""
+    model, s, active = analysis.model, analysis.s[:, b], analysis.active[:, b]
+    out = []
+    for j in torch.nonzero(active.any(0)).flatten().tolist():
+        at_upper = bool((s[active[:, j], j] > 0.5 * (model.lower[j] + model.upper[j])).float().mean() > 0.5)
+        out.append(dict(joint=model.joint_names[j], fraction=float(active[:, j].double().mean()),
+                        side="upper" if at_upper else "lower"))
+    return out

@@ -1,0 +1,204 @@
+"""What every candidate effect is, and how a fit is scored.
+
+An effect is something real recordings carry and the model does not declare. Each kind states
+
+- its signature: the residual it leaves (in the gyro's disagreement with its own orientations e,
+  or in the orientation residual r = M delta, see analysis.py);
+- a fit of its parameters from that residual, on the training half of the time;
+- how to add it: `correct(recording)` undoes a measurement effect in the recording (what a
+  calibration file does), `augment(urdf)` adds a model effect to the URDF; `inject` is the
+  forward model, used to make synthetic recordings that carry it.
+
+Score (a BIC difference, 2 log of the approximate Bayes factor, on held-out time): with y the
+channel's residual on the test half, y - y_hat what is left once the effect fitted on the train
+half is removed, sigma^2 the variance of what is left and tau its autocorrelation time (the
+samples are not independent; n/tau are),
+
+    score = (|y|^2 - |y - y_hat|^2) / (sigma^2 tau) - k log(n / tau)
+
+k the parameters (for an effect with a value per sample, such as a joint angle, one per
+independent sample). An effect is significant when score > SIGNIFICANT (Kass and Raftery's "very
+strong" evidence).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+import torch
+
+from ...io.recording import Recording
+from .analysis import autocorrelation_time
+
+SIGNIFICANT = 10.0
+
+
+@dataclass
+class Score:
+    """score (see module docstring), explained: share of the channel's test residual the effect
+    removes, sigma2 and tau of what is left, n test values."""
+
+    score: float
+    explained: float
+    sigma2: float
+    tau: float
+    n: int
+
+
+def score(y: torch.Tensor, leftover: torch.Tensor, k: float, per_sample: int = 0) -> Score:
+    """Score of an effect on test data. y, leftover: [n_t, d] (time first); k parameters plus
+    `per_sample` values fitted one per time sample (counted per independent sample)."""
+    y, leftover = y.reshape(y.shape[0], -1), leftover.reshape(leftover.shape[0], -1)
+    n_t, d = y.shape
+    if n_t < 4 or d == 0:  # nothing to score on (too short, or an effect that predicts no residual)
+        return Score(-math.inf, 0.0, math.nan, math.nan, n_t * d)
+    rss0, rss1 = float(y.square().sum()), float(leftover.square().sum())
+    tau = autocorrelation_time(leftover)
+    sigma2 = max(rss1 / (n_t * d), 1e-30)
+    n_eff = n_t * d / tau
+    penalty = (k + per_sample / tau) * math.log(max(n_eff, 2.0))
+    return Score((rss0 - rss1) / (sigma2 * tau) - penalty, (rss0 - rss1) / max(rss0, 1e-30), sigma2, tau, n_t * d)
+
+
+def combine(*scores: tuple[Score, float]) -> Score:
+    """One score from channels fitted jointly: (channel score computed with k = 0, k), the
+    parameters counted once (the largest k given)."""
+    k = max(kk for _, kk in scores)
+    total = sum(s.score for s, _ in scores)
+    n_eff = sum(s.n / s.tau for s, _ in scores)
+    explained = sum(s.explained for s, _ in scores) / len(scores)
+    return Score(total - k * math.log(max(n_eff, 2.0)), explained, scores[0][0].sigma2, scores[0][0].tau,
+                 sum(s.n for s, _ in scores))
+
+
+GUARD = 0.2  # s: the fits low-pass at up to 5 Hz, whose response's main lobe spans about 1/5 s
+
+
+def halves(time: torch.Tensor, block: float = 1.0, transient: float = 1.0, guard: float | None = None
+           ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Train and test masks [T]: alternate blocks of `block` seconds (even train, odd test), so
+    that both halves see every phase of a periodic motion and a drift's whole span. The first
+    `transient` seconds, while the tracker converges from its initial posture, are in neither
+    (none when the recording is shorter than three times that); a recording shorter than one and
+    a half blocks alternates quarters instead.
+
+    Samples within guard / 2 of a block's edge are in neither half: the fits low-pass the whole
+    series, and without the gap a test sample's filtered value would hold the noise of the
+    training samples beside it (and the reverse), which makes the held-out score optimistic. The
+    default guard is the filter's span, 1 / cutoff with the fits' cutoff min(5 Hz, rate / 4), and
+    at most half a block; guard = 0 gives every sample a half."""
+    if guard is None:
+        guard = max(GUARD, 4.0 * float(torch.diff(time).median())) if len(time) > 1 else 0.0
+    start = float(time[0]) + (transient if float(time[-1] - time[0]) > 3 * transient else 0.0)
+    position = (time - start) / block  # in blocks
+    if float(position.max()) < 1.5:  # too short for a test block: alternate quarters
+        block = max(float(time[-1] - start), 1e-9) / 4
+        position = (time - start) / block
+    index = torch.floor(position).long()
+    phase = position - index  # where in its block, 0 to 1
+    margin = min(0.5 * guard / block, 0.25)
+    inside = (time >= start) & (phase >= margin) & (phase < 1.0 - margin)
+    return (index % 2 == 0) & inside, (index % 2 == 1) & inside
+
+
+@dataclass
+class Effect:
+    """A fitted effect: kind, target (a link or joint), params and their standard errors (JSON-ready
+    lists or floats), n_params, its Score, and notes (what could not be identified)."""
+
+    kind: str = ""
+    target: str = ""
+    params: dict = field(default_factory=dict)
+    stderr: dict = field(default_factory=dict)
+    n_params: int = 0
+    fit: Score | None = None
+    notes: str = ""
+
+    model_effect = False  # True: added to the URDF (augment); False: to the measurements (correct)
+    additive: ClassVar[tuple[str, ...]] = ()  # the parameters that compose by addition (refine)
+    error = "mnte"  # the overall error it must lower to be kept (Errors.overall's key)
+
+    @property
+    def score(self) -> float:
+        return self.fit.score if self.fit is not None else -math.inf
+
+    def overlaps(self, other: "Effect") -> bool:
+        """Whether the two would correct the same thing (same kind, same target or one of them on all)."""
+        return self.kind == other.kind and (self.target == other.target or "all" in (self.target, other.target))
+
+    def implausible(self) -> str:
+        """Why the fitted parameters are beyond what this effect can be ("" when they are not): a
+        linearised fit can take a large residual of another cause for an absurd value of this one."""
+        return ""
+
+    def correct(self, recording: Recording) -> Recording:
+        """The recording with the effect removed."""
+        return self.apply(recording, -1.0)
+
+    def inject(self, recording: Recording) -> Recording:
+        """The recording as a sensor with this effect would give it."""
+        return self.apply(recording, 1.0)
+
+    def apply(self, recording: Recording, sign: float) -> Recording:
+        """The effect added (sign 1) or removed (sign -1): measurement effects define it."""
+        return recording
+
+    def augment(self, urdf: str) -> str:
+        """The URDF with the effect added (model effects)."""
+        return urdf
+
+    def refine(self, update: "Effect") -> "Effect":
+        """This effect composed with a fitted correction `update` of the same kind and target (a
+        Gauss-Newton step: the fit is linearised and the tracker absorbs part of an effect). By
+        default the `additive` parameters add up; the standard errors are the update's."""
+        for name in self.additive:
+            self.params[name] = (np.asarray(self.params[name]) + np.asarray(update.params[name])).tolist()
+        self.stderr = update.stderr
+        return self
+
+    def summary(self) -> str:
+        return f"{self.kind} at {self.target}"
+
+    def to_json(self) -> dict:
+        return dict(kind=self.kind, target=self.target, params=self.params, stderr=self.stderr,
+                    n_params=self.n_params, score=None if self.fit is None else self.fit.score,
+                    explained=None if self.fit is None else self.fit.explained, notes=self.notes)
+
+
+def replace(recording: Recording, **changes) -> Recording:
+    """A copy of `recording` with some arrays replaced (validated again)."""
+    fields = dict(time=recording.time, links=recording.links, orientation=recording.orientation,
+                  angular_velocity=recording.angular_velocity, base_link=recording.base_link,
+                  base_position=recording.base_position, base_linear_velocity=recording.base_linear_velocity,
+                  joint_names=recording.joint_names, joint_positions=recording.joint_positions,
+                  meta=dict(recording.meta))
+    fields.update(changes)
+    return Recording(**fields)
+
+
+def rotation_about(axis, angle) -> np.ndarray:
+    """R = exp(angle * axis), axis [3] unit, angle [T] -> [T,3,3] (numpy)."""
+    from ...method import so3
+
+    axis = torch.as_tensor(np.asarray(axis, dtype=np.float64))
+    angle = torch.as_tensor(np.asarray(angle, dtype=np.float64))
+    return so3.exp(angle[..., None] * axis).numpy()
+
+
+def shift(values: np.ndarray, time: np.ndarray, delay: float, rotations: bool = False) -> np.ndarray:
+    """values [T,...] taken at t + delay (linear interpolation; slerp for rotations [T,3,3]); the
+    ends held. A stream that lags by `delay` is corrected by shift(x, t, +delay)."""
+    from ...method import so3
+
+    x = np.interp(time + delay, time, np.arange(len(time), dtype=np.float64))
+    k = np.clip(np.floor(x).astype(int), 0, len(time) - 2)
+    a = np.clip(x - k, 0.0, 1.0)
+    lo, hi = values[k], values[k + 1]
+    if not rotations:
+        return lo + a.reshape(-1, *([1] * (values.ndim - 1))) * (hi - lo)
+    R0, R1 = torch.from_numpy(lo), torch.from_numpy(hi)
+    step = so3.log(R1 @ R0.transpose(-1, -2))
+    return (so3.exp(torch.from_numpy(a).view(-1, *([1] * (step.dim() - 1))) * step) @ R0).numpy()

@@ -1,0 +1,180 @@
+"""Effects of a gyro against its own orientations: bias, scale error, and a delay between the two
+streams. Their signature is e = S(w_m) - w_fd(R_m) (analysis.py), which needs no model:
+
+- bias b, constant in the sensor frame:          e = R_m b
+- scale error kappa (w_m = (1 + kappa) w):       e = kappa / (1 + kappa) S(w_m)
+- gyro late by d (w_m(t) = w(t - d)):            S(w_m)(t + d) = w_fd(t)
+
+All in the world frame, as recordings store angular velocity. Orientation noise, differentiated,
+makes e noisy at high frequencies, where these effects have little power: both sides of each fit are
+low-passed at `cutoff` (linear, so the parameters are unchanged). Fits are closed form: a
+regression, and a lag search refined by a parabola.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ...io.recording import Recording
+from .analysis import Analysis, lowpass, simpson
+from .effect import Effect, replace, score, shift
+from .placement import MAX_DELAY
+
+MAX_SCALE = 0.1  # a gyro whose scale is off by more than this is broken, not miscalibrated
+
+
+def _link(recording: Recording, name: str) -> int:
+    return recording.links.index(name)
+
+
+@dataclass
+class GyroBias(Effect):
+    """A constant angular-velocity bias params['bias'] [3] (rad/s, sensor frame) on a link's gyro."""
+
+    additive, error = ("bias",), "rmse"
+
+    def apply(self, recording, sign):
+        i, b = _link(recording, self.target), np.asarray(self.params["bias"])
+        w = recording.angular_velocity.copy()
+        w[:, i] += sign * recording.orientation[:, i] @ b
+        return replace(recording, angular_velocity=w)
+
+    def summary(self):
+        b = np.asarray(self.params["bias"])
+        return f"gyro bias on {self.target}: {np.linalg.norm(b) * 180 / np.pi:.2f} deg/s ({', '.join(f'{x:+.4f}' for x in b)} rad/s, sensor frame)"
+
+
+@dataclass
+class GyroScale(Effect):
+    """A gyro scale error params['scale_error'] = kappa: the gyro reads (1 + kappa) w."""
+
+    error = "rmse"
+
+    def apply(self, recording, sign):
+        i = _link(recording, self.target)
+        w = recording.angular_velocity.copy()
+        w[:, i] *= (1.0 + self.params["scale_error"]) ** sign
+        return replace(recording, angular_velocity=w)
+
+    def refine(self, update):
+        k = (1.0 + self.params["scale_error"]) * (1.0 + update.params["scale_error"]) - 1.0
+        self.params["scale_error"], self.stderr = k, update.stderr
+        return self
+
+    def implausible(self):
+        k = self.params["scale_error"]
+        return f"a scale error of {100 * k:+.1f} %, beyond {100 * MAX_SCALE:.0f} %" if abs(k) > MAX_SCALE else ""
+
+    def summary(self):
+        return f"gyro scale error on {self.target}: {100 * self.params['scale_error']:+.2f} %"
+
+
+@dataclass
+class StreamDelay(Effect):
+    """The gyro of a link lags its orientations by params['delay'] seconds; target "all": every
+    gyro of params['links'] by the same delay (a device's, not a sensor's)."""
+
+    additive, error = ("delay",), "rmse"
+
+    def apply(self, recording, sign):
+        w = recording.angular_velocity.copy()
+        for name in self.params.get("links", [self.target]):
+            i = _link(recording, name)
+            w[:, i] = shift(w[:, i], recording.time, -sign * self.params["delay"])
+        return replace(recording, angular_velocity=w)
+
+    def implausible(self):
+        return f"a delay of {self.params['delay']:.3g} s, beyond {MAX_DELAY} s" if abs(self.params["delay"]) > MAX_DELAY else ""
+
+    def summary(self):
+        which = f"every gyro ({len(self.params['links'])} sensors)" if self.target == "all" else f"gyro of {self.target}"
+        return f"{which} late on its orientations by {1e3 * self.params['delay']:.1f} ms"
+
+
+NO_GYRO = "not identifiable: the angular velocity is the orientations' derivative, not a gyro of its own"
+
+
+def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, derived: torch.Tensor | None = None,
+        max_delay: float = 0.1, cutoff: float = 5.0) -> list[Effect]:
+    """Bias, scale and stream-delay candidates for every link of subject b, and one delay common to
+    all its gyros (target "all"). derived [L]: links whose angular velocity is computed from the
+    orientations (default: analysis.derived), where these effects cannot be told (they come back
+    without a fit, saying so)."""
+    out, rates = [], []
+    time = analysis.time
+    derived = analysis.derived[b] if derived is None else derived
+    dt = float(torch.diff(time).median())
+    cutoff = min(cutoff, 0.25 / dt)
+    eye = torch.eye(3, dtype=time.dtype)
+    for i, name in enumerate(analysis.links):
+        if bool(derived[i]):
+            out += [GyroBias("gyro_bias", name, notes=NO_GYRO), GyroScale("gyro_scale", name, notes=NO_GYRO),
+                    StreamDelay("stream_delay", name, notes=NO_GYRO)]
+            continue
+        ok = analysis.valid[:, b, i]
+        tr, te = ok & train, ok & test
+        if int(tr.sum()) < 8 or int(te.sum()) < 8:
+            continue
+        low = lambda x: lowpass(x, time, cutoff)  # noqa: E731
+        e = low(analysis.e[:, b, i])
+        R = low(torch.where(ok[:, None, None], analysis.R_m[:, b, i], eye))
+        w_s = simpson(torch.where(ok[:, None], analysis.w_m[:, b, i], 0.0))
+        w_low = low(w_s)
+        # bias: e = R_m b, sensor frame
+        N = (R[tr].transpose(-1, -2) @ R[tr]).sum(0)
+        bias = torch.linalg.solve(N, (R[tr].transpose(-1, -2) @ e[tr, :, None]).sum(0)).squeeze(-1)
+        fit_b = score(e[te], e[te] - R[te] @ bias, 3)
+        cov = fit_b.sigma2 * fit_b.tau * torch.linalg.inv(N)
+        out.append(GyroBias("gyro_bias", name, dict(bias=bias.tolist()),
+                            dict(bias=cov.diagonal().sqrt().tolist()), 3, fit_b))
+        # scale: e = gamma S(w_m), gamma = kappa / (1 + kappa)
+        power = float(w_low[tr].square().sum().clamp(min=1e-12))
+        gamma = float((e[tr] * w_low[tr]).sum()) / power
+        fit_s = score(e[te], e[te] - gamma * w_low[te], 1)
+        sd = (fit_s.sigma2 * fit_s.tau / power) ** 0.5 / (1 - gamma) ** 2
+        out.append(GyroScale("gyro_scale", name, dict(scale_error=gamma / (1.0 - gamma)), dict(scale_error=sd), 1, fit_s))
+        # delay: the lag that best lines the gyro up with the orientations' rate
+        out.append(_delay(name, w_low, e, tr, te, time, max_delay))
+        rates.append((name, w_low, e, tr, te))
+    if len(rates) > 1:
+        names, w_low, e, tr, te = zip(*rates)
+        common = _delay("all", torch.cat(w_low, -1), torch.cat(e, -1), torch.stack(tr).all(0), torch.stack(te).all(0),
+                        time, max_delay)
+        common.params["links"] = list(names)
+        out.append(common)
+    return out
+
+
+def _delay(name: str, w_low: torch.Tensor, e: torch.Tensor, tr: torch.Tensor, te: torch.Tensor, time: torch.Tensor,
+           max_delay: float) -> StreamDelay:
+    """The StreamDelay of gyro rates w_low [T,d] (low-passed) that disagree with the orientations' by e."""
+    dt = float(torch.diff(time).median())
+    d, sd = _lag(w_low, w_low - e, tr, max(3, int(round(max_delay / dt))), dt)
+    shifted = torch.from_numpy(shift(w_low.numpy(), time.numpy(), d))
+    return StreamDelay("stream_delay", name, dict(delay=d), dict(delay=sd), 1, score(e[te], (shifted - (w_low - e))[te], 1))
+
+
+def _lag(x: torch.Tensor, y: torch.Tensor, mask: torch.Tensor, max_lag: int, dt: float) -> tuple[float, float]:
+    """d (s) minimising sum |x(t + d) - y(t)|^2 over the masked t: integer lags, then the parabola
+    through the best and its neighbours. Also its standard error from the parabola's curvature."""
+    T = x.shape[0]
+    lags = range(-max_lag, max_lag + 1)
+    inner = mask.clone()
+    inner[:max_lag] = False
+    inner[T - max_lag:] = False
+    cost = torch.stack([(x.roll(-k, 0)[inner] - y[inner]).square().sum() for k in lags])
+    j = int(cost.argmin())
+    if 0 < j < len(cost) - 1:
+        c0, c1, c2 = (float(c) for c in cost[j - 1:j + 2])
+        curvature = c0 - 2 * c1 + c2
+        offset = 0.5 * (c0 - c2) / curvature if curvature > 0 else 0.0
+        n = int(inner.sum()) * x.shape[-1]
+        sigma2 = c1 / max(n, 1)
+        # cost(d) ~ c1 + curvature/2 (d - d*)^2 in samples: var(d*) = 2 sigma^2 / curvature
+        sd = (2.0 * sigma2 / curvature) ** 0.5 * dt if curvature > 0 else float("inf")
+    else:
+        offset, sd = 0.0, float("inf")
+    return (lags[j] + offset) * dt, sd

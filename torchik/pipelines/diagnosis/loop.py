@@ -1,0 +1,291 @@
+"""The loop: track, analyse, fit every candidate effect, add the best if it is significant, repeat.
+
+    for each round:
+        analyse the residuals of the current recording and model
+        fit every candidate on the train half of the time, score it on the test half (effect.py)
+        the best scoring above SIGNIFICANT whose values are plausible (Effect.implausible): refit
+        it on all the data, add it (correct the recording, or augment the URDF), re-track, and
+        refine its parameters `refine` times (the fits are linearised and the tracker absorbs
+        part of an effect: Gauss-Newton steps)
+        keep it if the error it acts on did not rise and it is still plausible; else take it back
+    until no candidate is significant, or `max_effects` rounds are done.
+
+Candidates the data cannot identify (the joints follow them, or there is no gyro) come back
+without a fit and are listed, from the first round, in Diagnosis.unobservable.
+
+Subjects (recordings of the same length) run as one batch: every round tracks all of them at
+once, those whose model has changed in a batch of their own.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+import torch
+
+from ...io.recording import Recording
+from ...method.kinematics import KinematicModel
+from ...method.metrics import orientation_error
+from . import gyro, joints, placement, position
+from .analysis import Analysis, analyse, joint_summary, link_summary
+from .calibration import FORMAT
+from .effect import SIGNIFICANT, Effect, halves
+
+FAMILIES = ("gyro", "placement", "joints", "position")
+KINDS = ("gyro_bias", "gyro_scale", "stream_delay", "misalignment", "sensor_delay", "heading_drift", "missing_dof",
+         "joint_limit", "position_offset")
+TIE = 0.9  # a second candidate scoring this share of the best explains the data nearly as well
+WORSE = 1e-3  # an effect that raises its error by more than this share once re-tracked is taken back
+
+
+def candidates(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, urdf: str,
+               kinds: Sequence[str] = KINDS, derived: torch.Tensor | None = None) -> list[Effect]:
+    """Every candidate effect of subject b, fitted on `train` and scored on `test`, best first; last,
+    those the data cannot identify (no fit; their notes say why). derived [L]: links without a gyro of
+    their own (default: analysis.derived)."""
+    kinds = set(kinds)
+    out = []
+    if kinds & {"gyro_bias", "gyro_scale", "stream_delay"}:
+        out += gyro.fit(analysis, b, train, test, derived)
+    if kinds & {"misalignment", "sensor_delay", "heading_drift"}:
+        out += placement.fit(analysis, b, train, test, derived)
+    if kinds & {"missing_dof", "joint_limit"}:
+        out += joints.fit(analysis, b, train, test, urdf)
+    if "position_offset" in kinds:
+        out += position.fit(analysis, b, train, test)
+    out = [c for c in out if c.kind in kinds and (c.fit is None or math.isfinite(c.score))]
+    return sorted(out, key=lambda c: -c.score)
+
+
+@dataclass
+class Errors:
+    """Per link: mnte (mean of 1 - cos of the orientation error) and rmse (rad/s, angular velocity),
+    over the time after the transient; overall: their means over the links; base_velocity: the
+    rms of the base's measured linear velocity against the estimate (m/s, per axis)."""
+
+    links: tuple[str, ...]
+    mnte: np.ndarray
+    rmse: np.ndarray
+    base_velocity: float = float("nan")
+
+    @property
+    def overall(self) -> dict:
+        return dict(mnte=float(np.nanmean(self.mnte)), rmse=float(np.nanmean(self.rmse)),
+                    base_velocity_rmse=self.base_velocity)
+
+    def to_json(self) -> dict:
+        return dict(overall=self.overall, per_link={n: dict(mnte=float(m), rmse=float(r))
+                                                    for n, m, r in zip(self.links, self.mnte, self.rmse)})
+
+
+def errors(analysis: Analysis, b: int, transient: float = 1.0) -> Errors:
+    """The tracking errors of subject b against its (current, corrected) measurements."""
+    time = analysis.time
+    keep = time >= time[0] + (transient if float(time[-1] - time[0]) > 3 * transient else 0.0)
+    ok = analysis.valid[:, b] & keep[:, None]  # [T,L]
+    err = orientation_error(torch.where(ok[..., None, None], analysis.R_m[:, b], analysis.R_hat[:, b]), analysis.R_hat[:, b])
+    dw = torch.where(ok[..., None], analysis.w_m[:, b] - analysis.w_hat[:, b], 0.0).square().sum(-1) / 3.0
+    n = ok.sum(0).clamp(min=1)
+    v_hat = analysis.trajectory.velocity[:, b, :3]
+    if analysis.trajectory.velocity.shape[0] > 1:  # the midpoint scheme's nu_k is the mean over the step before t_k
+        v_hat = torch.cat((0.5 * (v_hat[:-1] + v_hat[1:]), v_hat[-1:]))
+    dv = (analysis.v_m[:, b] - v_hat)[keep]
+    dv = dv[torch.isfinite(dv).all(-1)]
+    return Errors(analysis.links, (err.sum(0) / n).numpy(), (dw.sum(0) / n).sqrt().numpy(),
+                  float(dv.square().mean().sqrt()) if len(dv) else float("nan"))
+
+
+@dataclass
+class Step:
+    """One added effect with the errors before and after it."""
+
+    effect: Effect
+    before: Errors
+    after: Errors
+
+
+@dataclass
+class Diagnosis:
+    """What the loop found for one recording: the effects (in the order added) with the errors
+    before and after each, the corrected recording and the (augmented) URDF, the first and last
+    analyses (subject `index` of their batches), the best candidate left (not significant), where
+    the residual sits at the end (link_summary rows, largest first), the joints at a limit, and
+    the candidates the data cannot identify (no fit, notes saying why), and the significant ones
+    not kept (implausible values, or added and taken back because re-tracking with them did not
+    lower the error; notes saying which). complete: the loop ended because no candidate was
+    significant any more (not at max_effects)."""
+
+    steps: list[Step]
+    recording: Recording
+    original: Recording
+    urdf: str
+    model: KinematicModel
+    links: tuple[str, ...]
+    first: tuple[Analysis, int]
+    last: tuple[Analysis, int]
+    best_rejected: Effect | None
+    remaining: list[dict] = field(default_factory=list)
+    limits: list[dict] = field(default_factory=list)
+    unobservable: list[Effect] = field(default_factory=list)
+    rejected: list[Effect] = field(default_factory=list)
+    complete: bool = True
+
+    @property
+    def effects(self) -> list[Effect]:
+        return [s.effect for s in self.steps]
+
+    @property
+    def before(self) -> Errors:
+        return errors(*self.first)
+
+    @property
+    def after(self) -> Errors:
+        return errors(*self.last)
+
+    def calibration(self) -> dict:
+        """The measurement effects, as `apply_calibration` reads them (JSON-ready)."""
+        return dict(format=FORMAT, links=list(self.links),
+                    effects=[e.to_json() for e in self.effects if not e.model_effect])
+
+
+@dataclass
+class _Subject:
+    recording: Recording
+    urdf: str
+    model: KinematicModel
+    steps: list = field(default_factory=list)
+    done: bool = False
+    best_rejected: Effect | None = None
+    analysis: tuple | None = None
+    first: tuple | None = None
+    derived: torch.Tensor | None = None
+    unobservable: list = field(default_factory=list)
+    rejected: list = field(default_factory=list)
+
+    def candidates(self, kinds, train=None, test=None) -> list[Effect]:
+        """Candidates on the current analysis (train and test: halves() unless given)."""
+        analysis, b = self.analysis
+        if train is None:
+            train, test = halves(analysis.time)
+        return candidates(analysis, b, train, test, self.urdf, kinds, self.derived)
+
+    def refit(self, effect: Effect) -> Effect | None:
+        """The effect's kind and target fitted again on all the current data (after the transient)."""
+        train, test = halves(self.analysis[0].time, guard=0.0)
+        found = [c for c in self.candidates((effect.kind,), train | test, train | test)
+                 if c.target == effect.target and c.fit is not None]
+        return found[0] if found else None
+
+    def add(self, effect: Effect) -> None:
+        if effect.model_effect:
+            self.urdf = effect.augment(self.urdf)
+            self.model = KinematicModel.from_urdf(self.urdf, name=f"{self.model.name}+", dtype=self.model.dtype)
+        else:
+            self.recording = effect.correct(self.recording)
+
+    def saved(self) -> tuple:
+        return self.recording, self.urdf, self.model, self.analysis
+
+
+def _analyse(subjects: list[_Subject], links, gain: float, progress: bool, max_samples: int = 300) -> None:
+    """Track and analyse the subjects, one batch per model."""
+    groups: dict[int, list[_Subject]] = {}
+    for s in subjects:
+        groups.setdefault(id(s.model), []).append(s)
+    for group in groups.values():
+        analysis = analyse(group[0].model, [s.recording for s in group], links, gain=gain, progress=progress,
+                           max_samples=max_samples)
+        for b, s in enumerate(group):
+            s.analysis = (analysis, b)
+
+
+def _choose(s: _Subject, kinds, threshold: float, first: bool) -> Effect | None:
+    """The best significant candidate of subject s, refitted on all the data (None when none is)."""
+    taken = s.rejected + [st.effect for st in s.steps]
+    found = [c for c in s.candidates(kinds) if not any(c.overlaps(e) for e in taken)]
+    if first:
+        s.unobservable = [c for c in found if c.fit is None]
+    found = [c for c in found if c.fit is not None]
+    while found and found[0].score > threshold:
+        best = found.pop(0)
+        final = s.refit(best) or best
+        final.fit = best.fit  # the score is the held-out one
+        why = final.implausible()
+        if not why:
+            break
+        final.notes = "; ".join(filter(None, [final.notes, f"implausible: {why}"]))
+        s.rejected.append(final)
+    else:
+        s.done, s.best_rejected = True, found[0] if found else None
+        return None
+    rivals = [c for c in found if c.score >= TIE * best.score and c.kind == best.kind]
+    if rivals:
+        final.notes = "; ".join(filter(None, [final.notes, "explained nearly as well by " + ", ".join(
+            f"{c.kind} at {c.target} (score {c.score:.0f} against {best.score:.0f})" for c in rivals)
+            + ": the data hardly tell them apart"]))
+    return final
+
+
+def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], links, gain: float = 20.0,
+             max_effects: int = 6, threshold: float = SIGNIFICANT, refine: int = 2, kinds: Sequence[str] = KINDS,
+             progress: bool = False, log: Callable[[str], None] | None = None,
+             max_samples: int = 300) -> list[Diagnosis]:
+    """Run the loop on B recordings (the same length, links the model's) with `model` built from
+    `urdf`. Returns one Diagnosis per recording. kinds: the candidate effects considered;
+    max_samples: the sample times at which effects are fitted against the task Jacobian.
+
+    An effect added is kept only if, re-tracked, it does not raise the error it acts on (Effect.error:
+    the orientations' MNTE, the angular-velocity RMSE or the base's velocity RMSE; by more than
+    WORSE: a gyro effect on one link moves the overall RMSE by little); otherwise the
+    subject goes back to where it was and the effect is listed in Diagnosis.rejected, as are
+    significant candidates whose fitted values are implausible (Effect.implausible)."""
+    links = tuple(links)
+    subjects = [_Subject(rec, urdf, model) for rec in recordings]
+    _analyse(subjects, links, gain, progress, max_samples)
+    for s in subjects:
+        s.first = s.analysis
+        s.derived = s.analysis[0].derived[s.analysis[1]]
+    say = log or (lambda _: None)
+    for round_ in range(max_effects):
+        added = []
+        for s in (s for s in subjects if not s.done):
+            effect = _choose(s, kinds, threshold, round_ == 0)
+            if effect is None:
+                continue
+            say(f"round {round_ + 1}: {effect.summary()} (score {effect.score:.0f})")
+            added.append((s, effect, errors(*s.analysis), s.saved()))
+            s.add(effect)
+        if not added:
+            break
+        changed = [s for s, *_ in added]
+        _analyse(changed, links, gain, progress, max_samples)
+        for _ in range(refine):
+            for s, effect, *_ in added:
+                update = None if isinstance(effect, joints.MissingDof) else s.refit(effect)
+                if update is not None:
+                    s.add(update)
+                    effect.refine(update)
+            _analyse(changed, links, gain, progress, max_samples)
+        for s, effect, before, saved in added:
+            after = errors(*s.analysis)
+            old, new = before.overall[effect.error], after.overall[effect.error]
+            why = (f"re-tracked with it, the {effect.error} went from {old:.4g} to {new:.4g}" if new > old * (1 + WORSE)
+                   else effect.implausible())  # refined, it may have gone where it cannot be
+            if not why:
+                s.steps.append(Step(effect, before, after))
+                continue
+            s.recording, s.urdf, s.model, s.analysis = saved
+            effect.notes = "; ".join(filter(None, [effect.notes, f"reverted: {why}"]))
+            s.rejected.append(effect)
+            say(f"round {round_ + 1}: {effect.kind} at {effect.target} reverted ({why})")
+    out = []
+    for s, original in zip(subjects, recordings):
+        analysis, b = s.analysis
+        remaining = sorted((row for row in link_summary(analysis, b) if "rms_deg" in row), key=lambda r: -r["rms_deg"])
+        out.append(Diagnosis(s.steps, s.recording, original, s.urdf, s.model, links, s.first, s.analysis,
+                             s.best_rejected, remaining, joint_summary(analysis, b), s.unobservable, s.rejected,
+                             s.done))
+    return out

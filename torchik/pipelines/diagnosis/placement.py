@@ -1,0 +1,244 @@
+"""Effects of where and when a sensor measures: misalignment, delay against the others, heading drift.
+
+A sensor's orientations R_m differ from the link's R by a small rotation delta (world frame,
+R_m = exp(delta) R); the tracker leaves r = M delta (analysis.py), so that delta = G theta with
+theta the effect's parameters is fitted by least squares against M:
+
+    theta = (sum_t G^T M G)^+ sum_t G^T M r
+
+- misalignment C = exp(c), c constant in the link frame (R_m = R C):    G = R_hat
+- the sensor's streams late by d on the others' (R_m(t) = R(t - d)):     G = -w_hat
+- heading drift eps about the world vertical (R_m = Rz(eps (t - t0)) R): G = (t - t0) z, and the
+  gyro, rotated with it, disagrees with the orientations by e = -eps z: both channels are fitted.
+
+Directions the joints can follow leave no residual (G^T M G is singular there): a misalignment
+about a link's own joint axes is a joint offset to the data, and is reported as not identified.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ...method import so3
+from .analysis import Analysis, lowpass
+from .effect import Effect, Score, combine, replace, rotation_about, score, shift
+
+MAX_DELAY = 0.25  # s: a sensor later than this on the others is no delay but a different recording
+MAX_DRIFT = 5.0  # deg/s: heading drift of inertial sensors is a fraction of this
+IDENTIFIABLE = 1e-2  # eigenvalues of G^T M G below this share of the largest: a direction not identified
+LEVERAGE = 1e-3  # a direction that leaves less of itself in the residual (G^T M G against G^T G): followed by the joints
+
+
+def project_blocks(analysis: Analysis, b: int, links: list[int], blocks: torch.Tensor) -> torch.Tensor:
+    """M G for N candidates whose G is `blocks` [N,S,3,k] on the orientation rows of links[n] and
+    zero elsewhere -> [N,S,R,k]."""
+    N, S, _, k = blocks.shape
+    G = blocks.new_zeros(N, S, analysis.J.shape[-2], k)
+    for n, i in enumerate(links):
+        G[n, :, analysis.orientation_rows(i)] = blocks[n]
+    return analysis.project(b, G)
+
+
+@dataclass
+class LinearFit:
+    """theta [k], its covariance [k,k], the identified directions [k,m], and the Score."""
+
+    theta: torch.Tensor
+    cov: torch.Tensor
+    identified: torch.Tensor
+    fit: Score
+
+
+def fit_linear(analysis: Analysis, b: int, links: list[int], blocks: torch.Tensor, train: torch.Tensor,
+               test: torch.Tensor, extra: list | None = None) -> list[LinearFit]:
+    """Fit r = M G theta for N candidates at once, G being `blocks` [N,S,3,k] on the orientation
+    rows of links[n] (project_blocks), on train, score on test (train, test [N,T] masks). `extra`:
+    per candidate a second channel (N_e [k,k], g_e [k], sigma2_e, y_test [n,d], predict(theta) ->
+    [n,d]) fitted jointly. A direction is identified when it leaves at least LEVERAGE of itself in
+    the residual (the joints do not follow it) and carries IDENTIFIABLE of the largest eigenvalue."""
+    MG = project_blocks(analysis, b, links, blocks)  # [N,S,R,k]
+    tr, te = train[:, analysis.sample], test[:, analysis.sample]  # [N,S]
+    r = analysis.stacked_residual()[:, b]  # [S,R]
+    w = tr.to(MG.dtype)[..., None, None]
+    N = (w * (MG.transpose(-1, -2) @ MG)).sum(1)  # [N,k,k]
+    N0 = (w * (blocks.transpose(-1, -2) @ blocks)).sum(1)  # the same before the joints absorb their part
+    g = (w[..., 0] * (MG.transpose(-1, -2) @ r[..., None])[..., 0]).sum(1)  # [N,k]
+    sigma2_o = max(float(torch.diff(r[:, 3:], dim=0).square().mean()) / 2.0, 1e-12)  # white noise: var(dr) = 2 sigma^2
+    out = []
+    for n in range(MG.shape[0]):
+        Nn, N0n, gn = N[n], N0[n], g[n]
+        if extra is not None:
+            N_e, g_e, sigma2_e = extra[n][:3]
+            Nn, N0n, gn = Nn / sigma2_o + N_e / sigma2_e, N0n / sigma2_o + N_e / sigma2_e, gn / sigma2_o + g_e / sigma2_e
+        eigval, eigvec = torch.linalg.eigh(Nn)
+        leverage = eigval / torch.einsum("ik,ij,jk->k", eigvec, N0n, eigvec).clamp(min=1e-300)
+        keep = (eigval > IDENTIFIABLE * eigval.max().clamp(min=1e-300)) & (leverage > LEVERAGE)
+        V = eigvec[:, keep]
+        inverse = V @ torch.diag(1.0 / eigval[keep]) @ V.T
+        theta = inverse @ gn
+        pred = MG[n] @ theta  # [S,R]
+        energy = pred.square().sum(0)
+        support = energy > 1e-6 * energy.max().clamp(min=1e-300)
+        support[:3] = False  # the base position (metres) is not part of an orientation effect's support
+        y = r[te[n]][:, support]
+        fit = score(y, y - pred[te[n]][:, support], 0 if extra is not None else int(keep.sum()))
+        if extra is not None:
+            y_e, predict = extra[n][3], extra[n][4]
+            fit = combine((fit, 0), (score(y_e, y_e - predict(theta), 0), int(keep.sum())))
+        scale = fit.sigma2 * fit.tau if extra is None else fit.tau  # extra: N already weighted by 1/sigma^2
+        out.append(LinearFit(theta, inverse * scale, V, fit))
+    return out
+
+
+UNOBSERVABLE = "not identifiable: the joints follow every direction of it, so it leaves no residual"
+
+
+def _unidentified(lf: LinearFit, k: int) -> str:
+    """The directions (link frame) a misalignment fit could not identify, in words."""
+    m = lf.identified.shape[1]
+    if m == k:
+        return ""
+    free = torch.linalg.svd(torch.eye(k, dtype=lf.identified.dtype) - lf.identified @ lf.identified.T)[0][:, :k - m]
+    about = " and ".join("(" + ", ".join(f"{x:+.2f}" for x in v) + ")" for v in free.T.tolist())
+    return (f"not identified about {about} in the link frame (the joints follow it; that part is set to zero "
+            f"and its standard error means nothing)")
+
+
+@dataclass
+class Misalignment(Effect):
+    """A constant sensor-to-segment rotation: R_m = R C, C = exp(params['rotation_vector']) (link
+    frame); params['identified']: the unit directions (link frame) the data determine."""
+
+    def apply(self, recording, sign):
+        i = recording.links.index(self.target)
+        C = self.rotation()
+        R = recording.orientation.copy()
+        R[:, i] = R[:, i] @ (C if sign > 0 else C.T)
+        return replace(recording, orientation=R)
+
+    def rotation(self) -> np.ndarray:
+        return so3.exp(torch.tensor(self.params["rotation_vector"], dtype=torch.float64)).numpy()
+
+    def refine(self, update):
+        C = update.rotation() @ self.rotation()  # R_m C^T = R Delta: C_true = Delta C
+        self.params["rotation_vector"] = so3.log(torch.from_numpy(C)).tolist()
+        self.stderr, self.notes = update.stderr, update.notes
+        return self
+
+    def summary(self):
+        c = np.asarray(self.params["rotation_vector"])
+        return (f"misalignment of the {self.target} sensor: {np.degrees(np.linalg.norm(c)):.2f} deg about "
+                f"({', '.join(f'{x:+.2f}' for x in c / max(np.linalg.norm(c), 1e-12))}) in the link frame")
+
+
+@dataclass
+class SensorDelay(Effect):
+    """A sensor whose streams (orientation and gyro) are late on the others by params['delay'] s."""
+
+    additive = ("delay",)
+
+    def apply(self, recording, sign):
+        i, d = recording.links.index(self.target), -sign * self.params["delay"]
+        R, w = recording.orientation.copy(), recording.angular_velocity.copy()
+        R[:, i] = shift(R[:, i], recording.time, d, rotations=True)
+        w[:, i] = shift(w[:, i], recording.time, d)
+        return replace(recording, orientation=R, angular_velocity=w)
+
+    def implausible(self):
+        return f"a delay of {self.params['delay']:.3g} s, beyond {MAX_DELAY} s" if abs(self.params["delay"]) > MAX_DELAY else ""
+
+    def summary(self):
+        return f"the {self.target} sensor is late on the others by {1e3 * self.params['delay']:.1f} ms"
+
+
+@dataclass
+class HeadingDrift(Effect):
+    """A sensor's heading drifting about the world vertical at params['rate'] rad/s from the start
+    params['t0']: orientations and world-frame gyro both turned by Rz(rate (t - t0))."""
+
+    additive = ("rate",)
+
+    def apply(self, recording, sign):
+        i = recording.links.index(self.target)
+        Rz = rotation_about([0.0, 0.0, 1.0], sign * self.params["rate"] * (recording.time - self.params["t0"]))
+        R, w = recording.orientation.copy(), recording.angular_velocity.copy()
+        R[:, i] = Rz @ R[:, i]
+        w[:, i] = (Rz @ w[:, i, :, None])[..., 0]
+        return replace(recording, orientation=R, angular_velocity=w)
+
+    def implausible(self):
+        rate = np.degrees(abs(self.params["rate"]))
+        return f"a drift of {rate:.3g} deg/s, beyond {MAX_DRIFT} deg/s" if rate > MAX_DRIFT else ""
+
+    def summary(self):
+        return f"heading of the {self.target} sensor drifting by {np.degrees(self.params['rate']):+.3f} deg/s"
+
+
+def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, derived: torch.Tensor | None = None) -> list[Effect]:
+    """Misalignment, sensor-delay and heading-drift candidates for every link of subject b; those
+    the data cannot identify without a fit (their notes say why). derived [L]: links whose angular
+    velocity is computed from the orientations (default: analysis.derived), whose drift is fitted
+    on the orientations alone."""
+    k, time = analysis.sample, analysis.time
+    derived = analysis.derived[b] if derived is None else derived
+    t0 = float(time[0])
+    ok = analysis.valid[:, b]  # [T,L]
+    usable = [i for i in range(len(analysis.links))
+              if int((ok[:, i] & train)[k].sum()) >= 8 and int((ok[:, i] & test)[k].sum()) >= 8]
+    if not usable:
+        return []
+    tr, te = (ok[:, usable] & train[:, None]).T, (ok[:, usable] & test[:, None]).T  # [N,T]
+    R_hat = analysis.R_hat[k, b][:, usable].transpose(0, 1)  # [N,S,3,3]
+    w_hat = analysis.w_hat[k, b][:, usable].transpose(0, 1)  # [N,S,3]
+    misalignments = fit_linear(analysis, b, usable, R_hat, tr, te)
+    delays = fit_linear(analysis, b, usable, -w_hat[..., None], tr, te)
+    drifts = _drift(analysis, b, usable, tr, te, derived)
+    out = []
+    for i, mis, delay, head in zip(usable, misalignments, delays, drifts):
+        name = analysis.links[i]
+        if not mis.identified.shape[1]:
+            out.append(Misalignment("misalignment", name, notes=UNOBSERVABLE))
+        else:
+            out.append(Misalignment("misalignment", name, dict(rotation_vector=mis.theta.tolist(),
+                                                               identified=mis.identified.T.tolist()),
+                                    dict(rotation_vector=mis.cov.diagonal().clamp(min=0).sqrt().tolist()),
+                                    mis.identified.shape[1], mis.fit, _unidentified(mis, 3)))
+        if not delay.identified.shape[1]:
+            out.append(SensorDelay("sensor_delay", name, notes=UNOBSERVABLE))
+        else:
+            out.append(SensorDelay("sensor_delay", name, dict(delay=float(delay.theta[0])),
+                                   dict(delay=float(delay.cov[0, 0].clamp(min=0).sqrt())), 1, delay.fit))
+        if not head.identified.shape[1]:
+            out.append(HeadingDrift("heading_drift", name, notes=UNOBSERVABLE))
+        else:
+            out.append(HeadingDrift("heading_drift", name, dict(rate=float(head.theta[0]), t0=t0),
+                                    dict(rate=float(head.cov[0, 0].clamp(min=0).sqrt())), 1, head.fit))
+    return out
+
+
+def _drift(analysis: Analysis, b: int, usable: list[int], tr: torch.Tensor, te: torch.Tensor,
+           derived: torch.Tensor) -> list[LinearFit]:
+    """Heading-drift fits of the links `usable`: G = (t - t0) z on the orientation channel and, where
+    the link has a gyro, its disagreement with the orientations e_z = -rate, fitted together."""
+    k, time = analysis.sample, analysis.time
+    z = torch.tensor([0.0, 0.0, 1.0], dtype=time.dtype)
+    drift = ((time[k] - time[0])[:, None] * z)[..., None]  # [S,3,1]
+    e_z = lowpass(analysis.e[:, b, :, 2], time, min(5.0, 0.25 / float(torch.diff(time).median())))
+    gyro = [n for n, i in enumerate(usable) if not bool(derived[i])]
+    none = [n for n, i in enumerate(usable) if bool(derived[i])]
+    extra = []
+    for n in gyro:
+        y_tr, y_te = e_z[tr[n], usable[n]], e_z[te[n], usable[n]]
+        extra.append((torch.tensor([[float(tr[n].sum())]], dtype=time.dtype), -y_tr.sum()[None],
+                      max(float(y_tr.var(unbiased=False)), 1e-12), y_te[:, None],  # noise about the constant fitted
+                      lambda theta, m=len(y_te): -theta[0].expand(m)[:, None]))
+    fits = {}
+    for group, channel in ((gyro, extra), (none, None)):
+        if group:
+            found = fit_linear(analysis, b, [usable[n] for n in group], drift.expand(len(group), -1, -1, -1),
+                               tr[group], te[group], channel)
+            fits.update(zip(group, found))
+    return [fits[n] for n in range(len(usable))]

@@ -1,0 +1,86 @@
+"""How well a trajectory tracks its targets: the estimated link motion, the paper's metrics at
+every sample, and their statistics after the transient."""
+
+from __future__ import annotations
+
+from typing import Iterator
+
+import torch
+
+from ..io.recording import Recording
+from ..method.kinematics import KinematicModel
+from ..method.metrics import angular_velocity_rmse, mnte, summary
+from ..method.state import TargetSequence, Trajectory
+
+
+def time_chunks(model: KinematicModel, trajectory: Trajectory, chunk: int = 4096) -> Iterator[tuple]:
+    """The trajectory's configurations a few whole time steps at a time, for batched kinematics.
+
+    Yields (steps, m, p [t*B,3], R [t*B,3,3], s [t*B,n]): `steps` a slice of the time axis, row
+    t*B + b subject b at step t, and `m` the model to call on those rows (a stack of subjects
+    repeated once per step when `model` holds several). About `chunk` rows per call."""
+    T, B = trajectory.joint_positions.shape[:2]
+    per_call = max(chunk // B, 1)
+    stacked: dict[int, KinematicModel] = {}
+    for start in range(0, T, per_call):
+        steps = slice(start, min(start + per_call, T))
+        t = steps.stop - steps.start
+        m = model if model.n_subjects == 1 else stacked.setdefault(t, KinematicModel.stack([model] * t))
+        p, R, s = (x[steps].reshape(t * B, *x.shape[2:])
+                   for x in (trajectory.base_position, trajectory.base_rotation, trajectory.joint_positions))
+        yield steps, m, p, R, s
+
+
+def link_motion(model: KinematicModel, trajectory: Trajectory, links, scheme: str = "midpoint", chunk: int = 4096):
+    """Estimated link rotations [T,B,L,3,3] and world angular velocities [T,B,L,3], computed a few
+    time steps at a time from the joint axes (omega_L = omega_B + sum_j M_Lj s_dot_j a_j).
+
+    The midpoint scheme's nu_k is the mean velocity over [t_{k-1}, t_k]; its estimate at t_k is the
+    mean of the two steps around it. The paper's nu_k is meant at t_k and is taken as it is."""
+    links = tuple(links)
+    mask = model.select(links).ancestor_mask  # [L,n]
+    velocity = trajectory.velocity  # [T,B,6+n]
+    if scheme == "midpoint" and len(velocity) > 1:
+        velocity = torch.cat((0.5 * (velocity[:-1] + velocity[1:]), velocity[-1:]))
+    B, L = velocity.shape[1], len(links)
+    rotations, omegas = [], []
+    with torch.inference_mode():
+        for steps, m, p, R, s in time_chunks(model, trajectory, chunk):
+            kin = m(p, R, s, links, jacobian=False, joint_axes=True)
+            nu = velocity[steps].reshape(-1, velocity.shape[-1])
+            omega = nu[:, None, 3:6] + mask @ (nu[:, 6:, None] * kin.joint_axes)
+            rotations.append(kin.rotation.view(-1, B, L, 3, 3))
+            omegas.append(omega.view(-1, B, L, 3))
+    return torch.cat(rotations), torch.cat(omegas)
+
+
+def tracking_errors(model: KinematicModel, trajectory: Trajectory, sequence: TargetSequence, links,
+                    scheme: str = "midpoint") -> dict[str, torch.Tensor]:
+    """The paper's metrics of every subject at every sample: mnte [T,B] and rmse [T,B] (rad/s),
+    estimate at t_k against the targets at t_k (`sequence` cut to the trajectory's length).
+    NaN where a target is missing."""
+    T = len(trajectory.time)
+    R_hat, w_hat = link_motion(model, trajectory, links, scheme)
+    return dict(mnte=mnte(sequence.rotation[:T], R_hat), rmse=angular_velocity_rmse(sequence.angular_velocity[:T], w_hat))
+
+
+def tracking_statistics(trajectory: Trajectory, sequence: TargetSequence, recording: Recording,
+                        model: KinematicModel, transient: float) -> dict:
+    """What `torchik track` reports of subject 0's accuracy, after `transient` seconds and over the
+    frames whose targets are all known: mnte and angular_velocity_rmse (`metrics.summary` dicts,
+    None when no frame is known) and, when the recording carries the model's joint angles,
+    joint_error_rad (max, rms). trajectory: [T,1,...] with the mnte and rmse diagnostics
+    (`tracking_errors`); sequence: its targets (at least T frames)."""
+    done, time, d = len(trajectory.time), trajectory.time, trajectory.diagnostics
+    known = (torch.isfinite(sequence.rotation[:done, 0]).flatten(-3).all(-1)
+             & torch.isfinite(sequence.angular_velocity[:done, 0]).flatten(-2).all(-1))  # [T]
+    any_known = bool(known.any())
+    out = dict(mnte=summary(d["mnte"][known, 0], time[known], transient) if any_known else None,
+               angular_velocity_rmse=summary(d["rmse"][known, 0], time[known], transient) if any_known else None)
+    if recording.joint_positions is not None and recording.joint_names == model.joint_names:
+        truth = torch.from_numpy(recording.joint_positions[:done]).to(trajectory.joint_positions)
+        err = (trajectory.joint_positions[:, 0] - truth).abs()
+        keep = time >= time[0] + transient
+        err = err[keep] if bool(keep.any()) else err
+        out["joint_error_rad"] = dict(max=float(err.max()), rms=float(err.square().mean().sqrt()))
+    return out

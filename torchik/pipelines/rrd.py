@@ -1,0 +1,382 @@
+"""Rerun recordings (.rrd) of a tracked sequence: the body moving with the estimate, each target's
+measured frame beside the estimated link frame, and the diagnostics as time series, on one time
+line "time" (seconds). Logged by columns: one `send_columns` per entity, never a loop over time,
+and the link poses of all time steps from batched kinematics.
+
+Entities, for each logged subject i of the batch:
+
+    /subject/<i>/estimate/<link>           Transform3D: the estimated link pose; axes on the tracked links
+    /subject/<i>/estimate/<link>/visual    the link's URDF visual shapes (boxes, cylinders, spheres;
+                                           meshes at visual/mesh<k>), fixed in the link frame
+    /subject/<i>/skeleton                  LineStrips3D: a bone from each tracked link to its nearest
+                                           tracked ancestor
+    /subject/<i>/target/<link>             Transform3D and longer axes: the measured rotation, at the
+                                           measured position where there is one, else at the estimate's
+    /subject/<i>/errors/<mnte|rmse>        Scalars: the paper's metrics (those the diagnostics hold)
+    /subject/<i>/residual/<position|orientation>/<link>
+                                           Scalars: the step's |r| (m, or sin of the angle)
+    /subject/<i>/joints/<joint>            Scalars: angle (rad), and lower and upper limit where the
+                                           joint has effective ones
+    /subject/<i>/solver/<active_constraints|solved|dropped|projected>
+    /subject/<i>/diagnostics/<name>        Scalars: any other per-subject diagnostic [T,B]
+    /timing/<step_time|kinematics_time|qp_time>   Scalars: ms for the whole batch's step
+    /aggregate/<group>/<name>              Scalars: mean and max over all subjects (batches only)
+
+A blueprint in the same file opens it on the 3D view beside error, residual, joint and solver plots.
+Open with `rerun FILE.rrd`.
+"""
+
+from __future__ import annotations
+
+import uuid
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+import torch
+
+from ..method import so3
+from ..errors import InputError
+from ..method.kinematics import KinematicModel, _read_urdf
+from ..io.files import replacing
+from .evaluation import time_chunks
+from ..method.state import TargetSequence, Trajectory
+
+GROUPS = {"mnte": "errors", "rmse": "errors", "active_constraints": "solver", "solved": "solver",
+          "dropped": "solver", "projected": "solver"}  # per-subject diagnostics [T,B]; others: "diagnostics"
+BATCH_SERIES = ("step_time", "kinematics_time", "qp_time")  # [T] seconds for the whole batch
+NO_LIMIT = 19.9  # rad: URDFs write +-10 rad for "no limit" (as KinematicModel.summary counts)
+PALETTE = ((80, 140, 220), (230, 120, 50), (90, 180, 90), (200, 80, 160), (150, 110, 60), (60, 170, 180))
+
+
+@dataclass(frozen=True)
+class Visual:
+    """One URDF <visual> of a link: kind 'box' (size: full extents [3]), 'cylinder' (size: radius,
+    length; axis z), 'sphere' (size: radius,) or 'mesh' (mesh: the file, size: scale [3]); its
+    origin in the link frame (translation [3], quaternion [4] x,y,z,w); rgba or None."""
+
+    kind: str
+    size: tuple[float, ...]
+    translation: tuple[float, float, float]
+    quaternion: tuple[float, float, float, float]
+    mesh: Path | None = None
+    rgba: tuple[float, float, float, float] | None = None
+
+
+def visuals(urdf: str | Path) -> dict[str, list[Visual]]:
+    """The visual shapes of a URDF (a file or its XML text), by link name. Mesh files given as
+    package://PACKAGE/... are looked for in a PACKAGE folder above the URDF's; a mesh that cannot
+    be found is left out with a warning naming it (the skeleton and frames still show the link)."""
+    robot, where = _read_urdf(urdf)
+    folder = Path(where).parent if Path(where).is_file() else Path.cwd()
+    shapes: dict[str, list[Visual]] = {}
+    for link in robot.links:  # build time: a Python walk over the URDF's links is fine
+        for visual in link.visuals:
+            geometry, origin = visual.geometry, visual.origin
+            xyz = tuple(float(v) for v in (origin.xyz if origin is not None and origin.xyz is not None else (0, 0, 0)))
+            rpy = torch.tensor(origin.rpy if origin is not None and origin.rpy is not None else (0.0, 0.0, 0.0),
+                               dtype=torch.float64)
+            quaternion = tuple(_quaternion_xyzw(so3.rpy_to_matrix(rpy)).tolist())
+            material = getattr(visual, "material", None)
+            color = getattr(material, "color", None)
+            rgba = tuple(color.rgba) if color is not None and color.rgba is not None else None
+            kind = type(geometry).__name__.lower()
+            if kind == "box":
+                size = tuple(float(v) for v in geometry.size)
+            elif kind == "cylinder":
+                size = (float(geometry.radius), float(geometry.length))
+            elif kind == "sphere":
+                size = (float(geometry.radius),)
+            elif kind == "mesh":
+                mesh = _find_mesh(geometry.filename, folder)
+                if mesh is None:
+                    warnings.warn(f"{where}: link {link.name!r}: mesh {geometry.filename} not found; "
+                                  f"the recording shows the link without it", stacklevel=2)
+                    continue
+                scale = tuple(float(v) for v in geometry.scale) if geometry.scale is not None else (1.0, 1.0, 1.0)
+                shapes.setdefault(link.name, []).append(Visual("mesh", scale, xyz, quaternion, mesh, rgba))
+                continue
+            else:
+                raise InputError(f"{where}: link {link.name!r} has a visual of unknown type {kind!r}")
+            shapes.setdefault(link.name, []).append(Visual(kind, size, xyz, quaternion, None, rgba))
+    return shapes
+
+
+def log_trajectory(path: str | Path, model: KinematicModel, links: Sequence[str], trajectory: Trajectory,
+                   targets: TargetSequence | None = None, *, position_links: Sequence[str] | None = None,
+                   urdf: str | Path | None = None, subjects: Sequence[int] | None = None, app_id: str = "torchik",
+                   axis_length: float = 0.08, chunk: int = 4096, progress: bool = False) -> Path:
+    """Write `trajectory` (time [T], states [T,B,...], diagnostics) as a rerun recording at `path`.
+
+    links: the orientation targets' links (the order of targets.rotation and of residual_norm's
+    orientation part); position_links: the position targets' (default: the base link).
+    targets: the measured sequence (time [T0 >= T], rotation [T0,B,n_o,3,3], position [T0,B,n_p,3]),
+    cut to the trajectory's length (an interrupted run); None logs the estimate only.
+    urdf: the model's URDF (a file or its text) whose visual shapes draw the body (default: the
+    model's source file when it has one; without one the body is the skeleton only).
+    subjects: which of the B subjects get their own entity tree (default all); the aggregate
+    covers all. chunk: rows per kinematics call. progress: a bar once the writing has lasted a
+    second. The file is written beside `path` and moved onto it when complete: an interrupted
+    call leaves no partial file. Returns the path.
+    """
+    links, path = tuple(links), Path(path)
+    position_links = tuple(position_links) if position_links is not None else (model.base_link,)
+    T, B = trajectory.joint_positions.shape[:2]
+    subjects = list(range(B)) if subjects is None else list(subjects)
+    if not subjects or not all(0 <= i < B for i in subjects):
+        raise InputError(f"subjects: expected indices in [0, {B}), got {subjects}")
+    if trajectory.time.shape != (T,):
+        raise InputError(f"trajectory.time: expected shape [{T}], got {list(trajectory.time.shape)}")
+    if targets is not None:
+        _check_targets(targets, T, B, len(links), len(position_links))
+    if urdf is None and Path(model.source).is_file():
+        urdf = model.source
+    shapes = visuals(urdf) if urdf is not None else {}
+    unknown = sorted(set(shapes) - set(model.link_names))
+    if unknown:
+        raise InputError(f"urdf: links {unknown} are not in model {model.name!r}: is it the model's URDF?")
+    per_subject, per_batch = _split_diagnostics(trajectory.diagnostics, T, B, len(links) + len(position_links))
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(subjects) + 1, desc=f"writing {path.name}", unit="part", leave=False, delay=1.0)
+
+    # every link that is tracked or drawn, tracked ones first
+    drawn = links + tuple(name for name in model.link_names if name in shapes and name not in links)
+    rotation, position = _link_poses(model, drawn, trajectory, chunk)  # [T,B,D,3,3], [T,B,D,3] float32
+    quaternion = _quaternion_xyzw(rotation).numpy()
+    child, parent = _bones(model, links)
+    bones = torch.stack((position[:, :, child], position[:, :, parent]), dim=-2).numpy()  # [T,B,E,2,3]
+    position = position.numpy()
+    host = lambda t: t.detach().to("cpu", torch.float64).numpy()  # noqa: E731
+    joint_positions, residual = host(trajectory.joint_positions), host(trajectory.diagnostics["residual_norm"])
+    lower, upper = host(model.lower), host(model.upper)
+    limited = np.isfinite(lower) & np.isfinite(upper) & (upper - lower < NO_LIMIT)
+    time = rr.TimeColumn("time", duration=host(trajectory.time))
+    if bar is not None:
+        bar.update()
+
+    rec = rr.RecordingStream(app_id, recording_id=uuid.uuid4())  # else one id per process: viewers would merge files
+    try:
+        with replacing(path) as part:
+            rec.save(part, default_blueprint=blueprint(subjects, aggregate=B > 1))
+            rec.send_recording_name(path.stem)
+            rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+            for i in subjects:
+                root = f"/subject/{i}"
+                color = PALETTE[i % len(PALETTE)]
+                for k, link in enumerate(drawn):
+                    name = f"{root}/estimate/{rr.escape_entity_path_part(link)}"
+                    if k < len(links):
+                        rec.log(name, rr.TransformAxes3D(axis_length), static=True)
+                    _log_visuals(rec, f"{name}/visual", shapes.get(link, ()), color)
+                    rec.send_columns(name, [time], rr.Transform3D.columns(
+                        translation=position[:, i, k], quaternion=quaternion[:, i, k]))
+                rec.log(f"{root}/skeleton", rr.LineStrips3D.from_fields(radii=[0.01], colors=[color]), static=True)
+                rec.send_columns(f"{root}/skeleton", [time], rr.LineStrips3D.columns(
+                    strips=bones[:, i].reshape(-1, 2, 3)).partition(np.full(T, len(child))))
+                if targets is not None:
+                    _log_targets(rec, f"{root}/target", trajectory.time, targets, i, links, position_links,
+                                 position[:, i, :len(links)], 1.5 * axis_length)
+                for name, values in per_subject.items():
+                    _send_scalars(rec, f"{root}/{GROUPS.get(name, 'diagnostics')}/{name}", time, values[:, i])
+                for j, link in enumerate(position_links + links):
+                    kind = "position" if j < len(position_links) else "orientation"
+                    _send_scalars(rec, f"{root}/residual/{kind}/{rr.escape_entity_path_part(link)}", time,
+                                  residual[:, i, j])
+                for j, joint in enumerate(model.joint_names):
+                    values, names = joint_positions[:, i, j], None
+                    if limited[j]:
+                        values = np.stack((values, np.full(T, lower[j]), np.full(T, upper[j])), axis=1)
+                        names = ["angle", "lower limit", "upper limit"]
+                    _send_scalars(rec, f"{root}/joints/{rr.escape_entity_path_part(joint)}", time, values, names)
+                if bar is not None:
+                    bar.update()
+            for name, values in per_batch.items():
+                _send_scalars(rec, f"/timing/{name}", time, values * 1e3, [f"{name.replace('_', ' ')} (ms)"])
+            if B > 1:
+                for name, values in per_subject.items():
+                    with warnings.catch_warnings():  # a step where every subject's value is NaN stays NaN
+                        warnings.simplefilter("ignore", RuntimeWarning)
+                        summary = np.stack((np.nanmean(values, axis=1), np.nanmax(values, axis=1)), axis=1)
+                    _send_scalars(rec, f"/aggregate/{GROUPS.get(name, 'diagnostics')}/{name}", time, summary,
+                                  ["mean", "max"])
+            rec.flush()
+            rec.disconnect()  # closes the file, with its footer, before it is moved into place
+    finally:
+        if bar is not None:
+            bar.close()
+    return path
+
+
+def blueprint(subjects: Sequence[int], aggregate: bool = False) -> rrb.Blueprint:
+    """The layout: the 3D view on the left; on the right MNTE and angular velocity RMSE (of the
+    first logged subject, or mean and max over the batch), residuals and joint angles of the first
+    logged subject, solver status and step time."""
+    first = f"/subject/{subjects[0]}"
+    summary = "/aggregate" if aggregate else first
+    return rrb.Blueprint(rrb.Horizontal(
+        rrb.Spatial3DView(name="estimate and targets", origin="/"),
+        rrb.Vertical(
+            rrb.Horizontal(rrb.TimeSeriesView(name="MNTE", origin=f"{summary}/errors/mnte"),
+                           rrb.TimeSeriesView(name="angular velocity RMSE (rad/s)", origin=f"{summary}/errors/rmse")),
+            rrb.TimeSeriesView(name=f"residual norms, subject {subjects[0]}", origin=f"{first}/residual"),
+            rrb.TimeSeriesView(name=f"joint angles (rad), subject {subjects[0]}", origin=f"{first}/joints"),
+            rrb.TimeSeriesView(name="solver and step time", contents=[f"{summary}/solver/**", "/timing/**"]),
+        ),
+        column_shares=[3, 2],
+    ))
+
+
+def _check_targets(targets: TargetSequence, T: int, B: int, n_o: int, n_p: int) -> None:
+    """Raise InputError unless the targets cover the trajectory's T steps, B subjects and links."""
+    expected = dict(rotation=(B, n_o, 3, 3), position=(B, n_p, 3))
+    for name, shape in expected.items():
+        value = getattr(targets, name)
+        if value.dim() != len(shape) + 1 or tuple(value.shape[1:]) != shape or value.shape[0] < T:
+            raise InputError(f"targets.{name}: expected shape [T0 >= {T},{','.join(map(str, shape))}] "
+                             f"(the trajectory's steps, subjects and links), got {list(value.shape)}")
+
+
+def _link_poses(model: KinematicModel, links: tuple[str, ...], trajectory: Trajectory, chunk: int):
+    """Estimated link rotations [T,B,L,3,3] and positions [T,B,L,3], float32 on the CPU (what the
+    viewer draws), by the batched kinematics over a few whole time steps at a time."""
+    T, B = trajectory.joint_positions.shape[:2]
+    L = len(links)
+    rotations, positions = [], []
+    with torch.inference_mode():
+        for _, m, p, R, s in time_chunks(model, trajectory, chunk):
+            kin = m(p, R, s, links, jacobian=False)
+            rotations.append(kin.rotation.to("cpu", torch.float32))
+            positions.append(kin.position.to("cpu", torch.float32))
+    return torch.cat(rotations).view(T, B, L, 3, 3), torch.cat(positions).view(T, B, L, 3)
+
+
+def _bones(model: KinematicModel, links: tuple[str, ...]) -> tuple[list[int], list[int]]:
+    """(child, parent) link indices: each link and its nearest ancestor among `links`. A link is
+    above another when the joints above it are a subset of the other's (links on one rigid body:
+    the earlier one is above)."""
+    above = model.select(links).ancestor_mask.bool().cpu()  # [L,n]
+    child, parent = [], []
+    for b in range(len(links)):  # build time: L links
+        ancestors = [a for a in range(len(links)) if a != b and bool((above[a] <= above[b]).all())
+                     and (bool((above[a] != above[b]).any()) or a < b)]
+        if ancestors:
+            child.append(b)
+            parent.append(max(ancestors, key=lambda a: int(above[a].sum())))
+    return child, parent
+
+
+def _quaternion_xyzw(R: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices [...,3,3] to unit quaternions [...,4] (x, y, z, w), rerun's order.
+
+    Each row of `candidates` is 4 q_k q for one k; the row with the largest diagonal entry 4 q_k^2
+    is the one whose normalisation is well conditioned (Shepperd's method)."""
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = (r.unbind(-1) for r in R.unbind(-2))
+    candidates = torch.stack((
+        torch.stack((1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01), -1),  # 4w (w, x, y, z)
+        torch.stack((m21 - m12, 1 + m00 - m11 - m22, m01 + m10, m02 + m20), -1),  # 4x (w, x, y, z)
+        torch.stack((m02 - m20, m01 + m10, 1 - m00 + m11 - m22, m12 + m21), -1),  # 4y
+        torch.stack((m10 - m01, m02 + m20, m12 + m21, 1 - m00 - m11 + m22), -1),  # 4z
+    ), -2)  # [...,4,4]
+    best = candidates.diagonal(dim1=-2, dim2=-1).argmax(-1)  # [...]
+    q = candidates.gather(-2, best[..., None, None].expand(*best.shape, 1, 4)).squeeze(-2)
+    q = q / q.norm(dim=-1, keepdim=True)
+    return q[..., [1, 2, 3, 0]]
+
+
+def _split_diagnostics(diagnostics: dict[str, torch.Tensor], T: int, B: int, n_targets: int):
+    """Per-subject scalar series {name: [T,B]} and whole-batch ones {name: [T]}, as float64 NumPy."""
+    if "residual_norm" not in diagnostics or tuple(diagnostics["residual_norm"].shape) != (T, B, n_targets):
+        raise InputError(f"trajectory.diagnostics['residual_norm']: expected shape [{T},{B},{n_targets}] "
+                         f"(position then orientation targets)")
+    per_subject, per_batch = {}, {}
+    for name, value in diagnostics.items():
+        value = value.detach().to("cpu", torch.float64).numpy()
+        if name in BATCH_SERIES:
+            if value.shape != (T,):
+                raise InputError(f"trajectory.diagnostics[{name!r}]: expected shape [{T}], got {list(value.shape)}")
+            per_batch[name] = value
+        elif name != "residual_norm":
+            if value.shape != (T, B):
+                raise InputError(f"trajectory.diagnostics[{name!r}]: expected shape [{T},{B}], got {list(value.shape)}")
+            per_subject[name] = value
+    return per_subject, per_batch
+
+
+def _log_visuals(rec: rr.RecordingStream, path: str, shapes: Sequence[Visual], color: tuple[int, int, int]) -> None:
+    """A link's visual shapes at `path`, static, in the link frame: primitives of one kind in one
+    archetype; each mesh at path/mesh<k> with its origin and scale."""
+    rgba = lambda v: [int(255 * c) for c in v.rgba] if v.rgba is not None else [*color, 255]  # noqa: E731
+    by_kind: dict[str, list[Visual]] = {}
+    for v in shapes:
+        by_kind.setdefault(v.kind, []).append(v)
+    common = lambda vs: dict(centers=[v.translation for v in vs], quaternions=[v.quaternion for v in vs],  # noqa: E731
+                             colors=[rgba(v) for v in vs])
+    if "box" in by_kind:
+        vs = by_kind["box"]
+        rec.log(path, rr.Boxes3D(half_sizes=[[s / 2 for s in v.size] for v in vs], **common(vs)), static=True)
+    if "cylinder" in by_kind:
+        vs = by_kind["cylinder"]
+        rec.log(path, rr.Cylinders3D(radii=[v.size[0] for v in vs], lengths=[v.size[1] for v in vs], **common(vs)),
+                static=True)
+    if "sphere" in by_kind:
+        vs = by_kind["sphere"]
+        rec.log(path, rr.Ellipsoids3D(half_sizes=[[v.size[0]] * 3 for v in vs], **common(vs)), static=True)
+    for k, v in enumerate(by_kind.get("mesh", ())):
+        rec.log(f"{path}/mesh{k}", rr.Transform3D(translation=v.translation, quaternion=v.quaternion, scale=v.size),
+                rr.Asset3D(path=v.mesh, albedo_factor=rgba(v)), static=True)
+
+
+def _find_mesh(filename: str, folder: Path) -> Path | None:
+    """A URDF mesh reference as a file: package://PACKAGE/REST in a folder PACKAGE at or above
+    `folder` (or beside one), file://PATH, or a path relative to `folder`."""
+    if filename.startswith("package://"):
+        package, _, rest = filename[len("package://"):].partition("/")
+        for above in (folder, *folder.parents):
+            candidates = [above / package / rest] + ([above / rest] if above.name == package else [])
+            found = [c for c in candidates if c.is_file()]
+            if found:
+                return found[0]
+        return None
+    path = Path(filename[len("file://"):] if filename.startswith("file://") else filename)
+    path = path if path.is_absolute() else folder / path
+    return path if path.is_file() else None
+
+
+def _log_targets(rec: rr.RecordingStream, root: str, time: torch.Tensor, targets: TargetSequence, i: int,
+                 links: tuple[str, ...], position_links: tuple[str, ...], estimate: np.ndarray,
+                 axis_length: float) -> None:
+    """Subject i's measured frames [T] at root/<link> (estimate: the estimated link origins
+    [T,L,3], where a target without a position is drawn); steps with a non-finite target are left
+    out of that link's column."""
+    T = len(time)
+    rotation = targets.rotation[:T, i].detach().to("cpu", torch.float64)  # [T,L,3,3]
+    where = torch.from_numpy(estimate).double().clone()  # [T,L,3]: at the estimated origin ...
+    for j, link in enumerate(position_links):  # ... or at the measured one
+        if link in links:
+            where[:, links.index(link)] = targets.position[:T, i, j].detach().to("cpu", torch.float64)
+    known = (torch.isfinite(rotation).flatten(-2).all(-1) & torch.isfinite(where).all(-1)).numpy()  # [T,L]
+    quaternion, where = _quaternion_xyzw(torch.nan_to_num(rotation)).numpy(), where.numpy()
+    seconds = time.detach().to("cpu", torch.float64).numpy()
+    for k, link in enumerate(links):
+        name = f"{root}/{rr.escape_entity_path_part(link)}"
+        keep = known[:, k]
+        rec.log(name, rr.TransformAxes3D(axis_length), static=True)
+        rec.send_columns(name, [rr.TimeColumn("time", duration=seconds[keep])], rr.Transform3D.columns(
+            translation=where[keep, k], quaternion=quaternion[keep, k]))
+
+
+def _send_scalars(rec: rr.RecordingStream, path: str, time: rr.TimeColumn, values: np.ndarray,
+                  names: list[str] | None = None) -> None:
+    """values [T] (one series) or [T,k] (k series, named by `names`) at `path`."""
+    if names is not None:
+        rec.log(path, rr.SeriesLines(names=names), static=True)
+    values = np.ascontiguousarray(values, dtype=np.float64)
+    columns = rr.Scalars.columns(scalars=values.reshape(-1))
+    rec.send_columns(path, [time], columns if values.ndim == 1 else columns.partition(np.full(len(values), values.shape[1])))
