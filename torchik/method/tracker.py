@@ -40,13 +40,13 @@ from ..errors import InputError
 from .integrate import ROTATION_INTEGRATORS, integrate, orthonormalize
 from .kinematics import KinematicModel, LinkKinematics
 from .limits import LimitSettings, base_velocity_bounds, linear_limit_bounds, velocity_bounds
+from .settings import SCHEMES
 from .qp import BACKENDS, BatchedBackend, QPBackend, JointTree, QPProblem, TreeHessian, make_backend
 from .residual import orientation_error, orientation_residual
 from .state import State, StepDiagnostics, TargetSequence, Trajectory
 from .targets import Targets, check_targets, clean_targets
 from .task import TaskStructure, normal_equations
 
-SCHEMES = {"midpoint": 2.0, "paper": 2.0}  # scheme -> linear stability bound on K dt
 
 
 def _axpy(x: torch.Tensor, a: "float | torch.Tensor", y: torch.Tensor) -> torch.Tensor:

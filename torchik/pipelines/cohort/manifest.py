@@ -41,7 +41,7 @@ from ...errors import InputError, TorchikError
 from ...io.maps import calibration_frame, load_map
 from ...method.models import MODELS, HumanSubject
 from ...method.qp import BACKENDS
-from ...method.tracker import SCHEMES
+from ...method.settings import SCHEMES
 
 REQUIRED = ("trial", "subject", "recording")
 TRIAL_ID = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")

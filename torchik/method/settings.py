@@ -1,0 +1,31 @@
+"""The tracker's settings, the one place their defaults are written."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from .limits import LimitSettings
+
+SCHEMES = {"midpoint": 2.0, "paper": 2.0}  # discretisation -> linear stability bound on K dt
+
+
+@dataclass(frozen=True)
+class TrackerSettings:
+    """How `DynamicalIK` tracks.
+
+    position_gain, orientation_gain: K per block (1/s), a scalar or one per target; dt: the nominal
+    time step (s); scheme: 'midpoint' (second order) or 'paper' (the paper's literal law);
+    rotation_integrator: 'baumgarte' (rho: baumgarte_gain, 1/s) or 'exp'; damping: lambda of
+    ||nu||^2; limits: the joint limits' velocity bounds; backend: the QP solver, 'auto' (batched
+    for a batch or on CUDA, else PIQP), 'piqp' or 'batched'.
+    """
+
+    position_gain: float = 20.0
+    orientation_gain: float = 20.0
+    dt: float = 0.01
+    scheme: str = "midpoint"
+    rotation_integrator: str = "baumgarte"
+    baumgarte_gain: float = 100.0
+    damping: float = 1e-9
+    limits: LimitSettings = field(default_factory=LimitSettings)
+    backend: str = "auto"
