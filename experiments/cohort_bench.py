@@ -30,14 +30,16 @@ from torchik.pipelines.cohort import read_manifest, run_cohort, write_synthetic_
 def baseline(manifest: Path) -> float:
     """Trials per minute tracking each trial alone, in this process, on one thread."""
     from torchik.pipelines.cohort.trial import prepare
+    from torchik.method.settings import TrackerSettings
     from torchik.pipelines.track import track_recording
 
     specs = read_manifest(manifest)
     start = time.perf_counter()
     for spec in specs:
         p = prepare(spec)
-        track_recording(p.model, p.recording, p.links, spec.position_gain, spec.orientation_gain, spec.scheme,
-                        spec.backend, transient=spec.transient)
+        settings = TrackerSettings(position_gain=spec.position_gain, orientation_gain=spec.orientation_gain,
+                                   scheme=spec.scheme, backend=spec.backend)
+        track_recording(p.model, p.recording, p.links, settings, transient=spec.transient)
     return 60.0 * len(specs) / (time.perf_counter() - start)
 
 

@@ -26,7 +26,6 @@ from torchik.pipelines.rrd import log_trajectory
 from torchik.synthetic.scenarios import scenario_motion
 from torchik.synthetic.motion import Motion, targets_from_motion
 from torchik.pipelines.evaluation import tracking_errors
-from torchik.pipelines.track import run_interruptible
 from torchik.method.tracker import DynamicalIK
 from torchik.method.state import TargetSequence
 
@@ -58,7 +57,7 @@ def main() -> None:
     tracker = DynamicalIK(model, links, position_gain=20.0, orientation_gain=20.0, dt=1.0 / args.rate)
 
     start = time.perf_counter()
-    trajectory, _ = run_interruptible(tracker, sequence, progress=True)
+    trajectory = tracker.run(sequence, progress=True, interruptible=True)
     track_s = time.perf_counter() - start
 
     start = time.perf_counter()

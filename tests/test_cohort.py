@@ -19,6 +19,7 @@ from torchik.pipelines.cohort.synthetic import synthetic_trials
 from torchik.pipelines.cohort.trial import load_result
 from torchik.io import load_recording
 from torchik.method.models import TRACKED_LINKS, HumanSubject, load_model
+from torchik.method.settings import TrackerSettings
 from torchik.pipelines.track import track_recording
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -88,8 +89,10 @@ def _alone(spec, backend=None):
     """The trial as `torchik track` tracks it: its subject's model, its recording, the same options."""
     subject = HumanSubject(height=spec.height, mass=spec.mass)
     model = load_model(spec.model, subject)
-    return track_recording(model, load_recording(spec.recording), TRACKED_LINKS[spec.model], spec.position_gain,
-                           spec.orientation_gain, spec.scheme, backend or spec.backend, transient=spec.transient)
+    settings = TrackerSettings(position_gain=spec.position_gain, orientation_gain=spec.orientation_gain,
+                               scheme=spec.scheme, backend=backend or spec.backend)
+    return track_recording(model, load_recording(spec.recording), TRACKED_LINKS[spec.model], settings,
+                           transient=spec.transient)
 
 
 def test_the_summary_equals_tracking_each_trial_alone(full_run, with_bad_trials):

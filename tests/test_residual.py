@@ -5,7 +5,8 @@ import math
 import torch
 
 from torchik.method import so3
-from torchik.method.residual import corrected_velocity, orientation_error, orientation_residual, position_residual
+from torchik.method.metrics import orientation_error
+from torchik.method.residual import corrected_velocity, orientation_residual, position_residual
 
 
 def test_orientation_residual_is_sine_of_the_angle_about_the_world_error_axis():

@@ -13,7 +13,7 @@ from torchik.io.targets import recording_targets
 from torchik.synthetic.scenarios import scenario
 from torchik.synthetic.motion import periodic_motion, targets_from_motion
 from torchik.pipelines.evaluation import tracking_errors
-from torchik.pipelines.track import run_interruptible, track_recording
+from torchik.pipelines.track import track_recording
 from torchik.method.tracker import DynamicalIK
 
 
@@ -120,7 +120,7 @@ def test_a_batch_has_one_tree_per_subject_and_their_mean_and_max(tmp_path):
     model, links = load_model("human48"), TRACKED_LINKS["human48"]
     motion = periodic_motion(model, 0.3, 100, batch=3)
     sequence = targets_from_motion(model, motion, links)
-    trajectory, _ = run_interruptible(DynamicalIK(model, links, dt=0.01), sequence, motion.state(0))
+    trajectory = DynamicalIK(model, links, dt=0.01).run(sequence, motion.state(0), interruptible=True)
     trajectory.diagnostics.update(tracking_errors(model, trajectory, sequence, links))
     path = log_trajectory(tmp_path / "batch.rrd", model, links, trajectory, sequence)
     paths = entity_paths(path)

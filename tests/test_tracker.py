@@ -8,7 +8,7 @@ import torch
 
 from torchik import InputError, KinematicModel, so3
 from torchik.method.models import TRACKED_LINKS, HumanSubject, load_model
-from torchik.method.residual import orientation_error
+from torchik.method.metrics import orientation_error
 from torchik.synthetic.motion import periodic_motion, targets_from_motion
 from torchik.method.targets import Targets
 from torchik.method.tracker import DynamicalIK
@@ -271,3 +271,22 @@ def test_history_is_not_aliased_to_the_callers_buffers():
             getattr(buffer, name).copy_(value)
         state, _ = tracker.step(buffer)  # samples at the nominal rate: run() steps them with the nominal dt
     assert torch.equal(state.joint_positions, fresh.joint_positions[-1])
+
+
+@pytest.mark.parametrize("scheme", ["midpoint", "paper"])
+def test_the_steps_mnte_is_the_reports_one_step_later(scheme):
+    """One MNTE: the step's diagnostic (the state at the step's start against the targets of that
+    instant) equals the report's (the estimate at t_k against the targets at t_k) one step later."""
+    from torchik.io import recording_targets
+    from torchik.method.settings import TrackerSettings
+    from torchik.pipelines.evaluation import tracking_errors
+    from torchik.synthetic.scenarios import scenario
+
+    model, links = load_model("human48"), TRACKED_LINKS["human48"]
+    recording = scenario("walking", load_model("human66"), links, duration=1.0, rate=100.0)
+    sequence = recording_targets(recording, links)
+    trajectory = DynamicalIK(model, links, settings=TrackerSettings(scheme=scheme)).run(sequence)
+    step = trajectory.diagnostics["mnte"][1:, 0]
+    report = tracking_errors(model, trajectory, sequence, links, scheme)["mnte"][:-1, 0]
+    assert float(step.min()) > 1e-6  # Human48 cannot reach Human66's targets: errors well above rounding
+    assert torch.allclose(step, report, rtol=1e-9, atol=0.0)

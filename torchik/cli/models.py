@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from ..errors import InputError
+from ..method.models import MODELS
 from .common import add_command
 from .track import EXAMPLES
 
@@ -21,7 +22,7 @@ def _segment(text: str) -> tuple[str, float]:
 def add_parser(subparsers) -> None:
     """Register `torchik models`."""
     models = add_command(subparsers, "models", "list the built-in models, or write the human URDFs", EXAMPLES)
-    models.add_argument("--links", metavar="MODEL", choices=("human66", "human48", "icub"),
+    models.add_argument("--links", metavar="MODEL", choices=MODELS,
                         help="show one model's joints and limits")
     models.add_argument("--write", metavar="DIR", help="write human66.urdf and human48.urdf into DIR")
     models.add_argument("--force", action="store_true", help="overwrite the URDFs in DIR if they exist")

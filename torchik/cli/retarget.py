@@ -10,6 +10,7 @@ import torch
 
 from ..errors import InputError
 from ..method.limits import LimitSettings
+from ..method.settings import TrackerSettings
 from ..pipelines.retarget import LIMIT_TOLERANCE, retarget, save
 from .common import add_map_arguments
 
@@ -78,7 +79,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     add_map_arguments(parser, "the human models' links")
     parser.add_argument("--rate", type=float, default=100.0,
                         help="output rate in Hz, 50 or more (default 100); the recording is resampled to it")
-    parser.add_argument("--gain", type=float, default=20.0, help="K of the tracker, 1/s (default 20)")
+    parser.add_argument("--gain", type=float, default=TrackerSettings.position_gain,
+                        help=f"K of the tracker, 1/s (default {TrackerSettings.position_gain:g})")
     parser.add_argument("--max-rate", type=float, default=LimitSettings().max_rate,
                         help=f"the largest joint rate, rad/s (default {LimitSettings().max_rate:g}): set it to the "
                              f"robot's own")

@@ -9,6 +9,10 @@ import time
 from pathlib import Path
 
 from ..errors import InputError
+from ..method.models import MODELS
+from ..method.qp import BACKENDS
+from ..method.settings import SCHEMES, TrackerSettings
+from ..synthetic.scenarios import SCENARIOS
 from .common import add_command, add_map_arguments, check_outputs, model_urdf, torch_device
 
 EXAMPLES = """examples:
@@ -32,10 +36,10 @@ def add_parser(subparsers) -> None:
     track = add_command(subparsers, "track", "track a recording or a built-in scenario and report the errors",
                         EXAMPLES)
     source = track.add_mutually_exclusive_group()
-    source.add_argument("--scenario", default="walking", help="built-in scenario: tpose, walking, running (default walking)")
+    source.add_argument("--scenario", default="walking", help=f"built-in scenario: {', '.join(SCENARIOS)} (default walking)")
     source.add_argument("--input", metavar="FILE", help="a recording (.npz) or source file whose segments are the model's links")
     add_map_arguments(track)
-    track.add_argument("--model", default="human66", choices=("human66", "human48", "icub"))
+    track.add_argument("--model", default="human66", choices=MODELS)
     track.add_argument("--urdf", metavar="FILE", help="track with this URDF of --model instead, e.g. the model.urdf "
                        "`torchik diagnose` writes (--model still names the tracked links)")
     track.add_argument("--sensor-calibration", metavar="JSON", help="undo the sensor effects (offsets, biases, delays, "
@@ -43,12 +47,13 @@ def add_parser(subparsers) -> None:
     track.add_argument("--duration", type=float, default=10.0, help="scenario length in seconds (default 10)")
     track.add_argument("--rate", type=float, default=100.0, help="scenario rate in Hz (default 100)")
     track.add_argument("--seed", type=int, default=0)
-    track.add_argument("--gain", type=float, default=20.0, help="K for positions and orientations, 1/s (default 20)")
+    track.add_argument("--gain", type=float, default=TrackerSettings.position_gain,
+                       help=f"K for positions and orientations, 1/s (default {TrackerSettings.position_gain:g})")
     track.add_argument("--position-gain", type=float, metavar="K", help="K of the position target, 1/s (default --gain)")
     track.add_argument("--orientation-gain", type=float, metavar="K",
                        help="K of the orientation targets, 1/s (default --gain)")
-    track.add_argument("--scheme", default="midpoint", choices=("midpoint", "paper"))
-    track.add_argument("--backend", default="auto", choices=("auto", "piqp", "batched"),
+    track.add_argument("--scheme", default=TrackerSettings.scheme, choices=tuple(SCHEMES))
+    track.add_argument("--backend", default=TrackerSettings.backend, choices=("auto", *BACKENDS),
                        help="QP solver: PIQP per subject, batched in torch, or auto (batched for batches, default)")
     track.add_argument("--device", default="cpu", help="torch device: cpu (default), cuda or cuda:N")
     track.add_argument("--report", metavar="JSON", help="write the metrics here")
@@ -66,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io import map_recording, read, recording_targets, save_trajectory, write_json
     from ..method.models import TRACKED_LINKS, load_model
     from ..pipelines.track import track_recording
-    from ..synthetic.scenarios import SCENARIOS, scenario
+    from ..synthetic.scenarios import scenario
 
     if args.rrd and Path(args.rrd).suffix != ".rrd":
         raise InputError(f"{args.rrd}: a rerun recording's name must end in .rrd (e.g. walk.rrd)")
@@ -104,11 +109,11 @@ def run(args: argparse.Namespace) -> int:
 
         recording = apply_calibration_file(recording, args.sensor_calibration)
         source += f" with sensor calibration {args.sensor_calibration}"
-    position_gain = args.gain if args.position_gain is None else args.position_gain
-    orientation_gain = args.gain if args.orientation_gain is None else args.orientation_gain
+    settings = TrackerSettings(position_gain=args.gain if args.position_gain is None else args.position_gain,
+                               orientation_gain=args.gain if args.orientation_gain is None else args.orientation_gain,
+                               scheme=args.scheme, backend=args.backend)
     start = time.perf_counter()
-    trajectory, report = track_recording(model, recording, links, position_gain, orientation_gain, args.scheme,
-                                         args.backend, progress=not args.quiet)
+    trajectory, report = track_recording(model, recording, links, settings, progress=not args.quiet)
     report.update(source=source, device=str(device), wall_time_s=time.perf_counter() - start)
     if not args.quiet:
         _print_report(report, source, model.name)

@@ -13,8 +13,23 @@ is brought back at a bounded rate, b tanh(K_g gap) < 0, rather than in one jump.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
+
+
+class Bounds(NamedTuple):
+    """lower <= x <= upper, elementwise; +-inf where free."""
+
+    lower: torch.Tensor
+    upper: torch.Tensor
+
+
+class LinearRows(NamedTuple):
+    """G x <= h: G [B,m,N], h [B,m]."""
+
+    G: torch.Tensor
+    h: torch.Tensor
 
 
 @dataclass(frozen=True)
@@ -28,22 +43,22 @@ class LimitSettings:
     base_angular: float | None = None
 
 
-def _bound(gap: torch.Tensor, max_rate: float, gain: float, dt: torch.Tensor) -> torch.Tensor:
+def _bound(gap: torch.Tensor, max_rate: float, gain: float, dt: torch.Tensor | float) -> torch.Tensor:
     """Largest rate towards a boundary at distance `gap` (negative outside): [...] -> [...]."""
     # outside (gap < 0) the cap is 0 and the smooth bound, negative there, is the smaller
     return torch.minimum(max_rate * torch.tanh(gain * gap), gap.clamp(min=0.0) / dt)
 
 
 def joint_velocity_bounds(s: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, settings: LimitSettings,
-                          dt: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Bounds on s_dot from joint limits. s: [B,n]; lower, upper: [n]; dt: [B,1] -> lb, ub [B,n]."""
-    ub = _bound(upper - s, settings.max_rate, settings.gain, dt)
-    lb = -_bound(s - lower, settings.max_rate, settings.gain, dt)
-    return torch.minimum(lb, ub), ub  # past one limit by more than the range, the way back wins
+                          dt: torch.Tensor | float) -> Bounds:
+    """Bounds on s_dot from joint limits. s: [B,n]; lower, upper: [n]; dt: [B,1] or a float -> [B,n] each."""
+    gaps = torch.stack((upper - s, s - lower))  # [2,B,n]: towards the upper, towards the lower limit
+    ub, towards_lower = _bound(gaps, settings.max_rate, settings.gain, dt).unbind()
+    return Bounds(torch.minimum(-towards_lower, ub), ub)  # past one limit by more than the range, the way back wins
 
 
 def linear_limit_bounds(s: torch.Tensor, A: torch.Tensor, b: torch.Tensor, settings: LimitSettings,
-                        dt: torch.Tensor) -> torch.Tensor:
+                        dt: torch.Tensor | float) -> torch.Tensor:
     """Right-hand side h of `A s_dot <= h` from `A s <= b`. s: [B,n]; A: [m,n]; b: [m]; dt: [B,1] -> h [B,m].
 
     Each row is scaled to unit norm so that `gain` and `max_rate` mean the same as for a joint.
@@ -54,23 +69,21 @@ def linear_limit_bounds(s: torch.Tensor, A: torch.Tensor, b: torch.Tensor, setti
 
 
 def velocity_bounds(s: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, settings: LimitSettings,
-                    dt: torch.Tensor, base: tuple[torch.Tensor, torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-    """Bounds on the whole nu = (p_dot_B, omega_B, s_dot). s: [B,n] -> lb, ub [B,6+n] (inf where free).
+                    dt: torch.Tensor | float, base: Bounds | None = None) -> Bounds:
+    """Bounds on the whole nu = (p_dot_B, omega_B, s_dot). s: [B,n] -> [B,6+n] each (inf where free).
 
     base: the base's bounds from `base_velocity_bounds` (computed here when not given).
     """
-    gaps = torch.stack((upper - s, s - lower))  # [2,B,n]: towards the upper, towards the lower limit
-    ub_s, towards_lower = _bound(gaps, settings.max_rate, settings.gain, dt).unbind()
-    lb_s = torch.minimum(-towards_lower, ub_s)  # past one limit by more than the range, the way back wins
-    base_lb, base_ub = base if base is not None else base_velocity_bounds(s.shape[0], settings, s.dtype, s.device)
-    return torch.cat((base_lb, lb_s), dim=1), torch.cat((base_ub, ub_s), dim=1)
+    joints = joint_velocity_bounds(s, lower, upper, settings, dt)
+    base = base if base is not None else base_velocity_bounds(s.shape[0], settings, s.dtype, s.device)
+    return Bounds(torch.cat((base.lower, joints.lower), dim=1), torch.cat((base.upper, joints.upper), dim=1))
 
 
-def base_velocity_bounds(batch: int, settings: LimitSettings, dtype=torch.float64, device="cpu") -> tuple[torch.Tensor, torch.Tensor]:
-    """The base velocity's bounds: lb, ub [B,6], +-inf where free."""
+def base_velocity_bounds(batch: int, settings: LimitSettings, dtype=torch.float64, device="cpu") -> Bounds:
+    """The base velocity's bounds: [B,6] each, +-inf where free."""
     ub = torch.full((batch, 6), torch.inf, dtype=dtype, device=device)
     if settings.base_linear is not None:
         ub[:, :3] = settings.base_linear
     if settings.base_angular is not None:
         ub[:, 3:] = settings.base_angular
-    return -ub, ub
+    return Bounds(-ub, ub)

@@ -12,20 +12,25 @@ from __future__ import annotations
 
 import torch
 
-from . import so3
+from .residual import orientation_residual
 
 
-def orientation_error(R_target: torch.Tensor, R_estimate: torch.Tensor) -> torch.Tensor:
-    """tr(I - R_hat^T R)/2 = 1 - cos(angle) per rotation. R_target, R_estimate: [...,3,3] -> [...].
+def orientation_error(R_target: torch.Tensor, R_estimate: torch.Tensor,
+                      residual: torch.Tensor | None = None) -> torch.Tensor:
+    """tr(I - R_hat^T R)/2 = 1 - cos(angle) per rotation. R_target, R_estimate: [...,3,3] (R_estimate
+    orthonormal) -> [...]; residual: `orientation_residual(R_target, R_estimate)` [...,3] when
+    already computed (the tracker's step has it).
 
     Accurate to rounding relative to the value, also for tiny errors: (3 - tr)/2 cancels to
     +-1e-16 absolute (so a converged solver would show negative MNTE), whereas
-    1 - cos = sin^2 / (1 + cos) uses the skew part, whose size is sin(angle) itself. Beyond 90
-    degrees (cos < 0) the trace formula has no cancellation and is used as it is.
+    1 - cos = sin^2 / (1 + cos) uses the skew part, whose size is sin(angle) itself: the
+    orientation residual's norm. Beyond 90 degrees (cos < 0) the trace formula has no
+    cancellation and is used as it is.
     """
-    M = R_estimate.transpose(-1, -2) @ R_target
-    cos = (M.diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0) / 2.0
-    sin_squared = so3.skew_vee(M).square().sum(-1)
+    cos = ((R_estimate * R_target).sum((-1, -2)) - 1.0) / 2.0  # tr(R_hat^T R) without the product
+    if residual is None:
+        residual = orientation_residual(R_target, R_estimate)
+    sin_squared = residual.square().sum(-1)
     return torch.where(cos > 0, sin_squared / (1.0 + cos.clamp(min=0.0)), 1.0 - cos)
 
 

@@ -4,13 +4,13 @@ position:    r_p = p_target - p(q)                                   [B,n_p,3]
 orientation: r_o = R_hat sk(R_hat^T R_target)^vee                    [B,n_o,3]
 The orientation residual is in the world frame, the frame of the angular velocity it corrects;
 its norm is sin(angle) of the error, so its gain sets the rate near convergence.
-Corrected velocities: v* = v + K r.
+Corrected velocities: v* = v + K r. The error the paper's MNTE averages, 1 - cos(angle), is
+`metrics.orientation_error`.
 """
 
 from __future__ import annotations
 
 import torch
-
 
 
 def position_residual(p_target: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
@@ -29,14 +29,9 @@ def orientation_residual(R_target: torch.Tensor, R_hat: torch.Tensor) -> torch.T
     return 0.5 * torch.linalg.cross(R_hat, R_target, dim=-2).sum(-1)
 
 
-def orientation_error(R_target: torch.Tensor, R_hat: torch.Tensor) -> torch.Tensor:
-    """tr(I - R_hat^T R_target) / 2 = 1 - cos(angle) per target. [B,n,3,3] -> [B,n], in [0, 2]."""
-    trace = (R_hat * R_target).sum((-1, -2))  # tr(R_hat^T R_target)
-    return (3.0 - trace) / 2.0
-
-
 def corrected_velocity(velocity: torch.Tensor, residual: torch.Tensor, gain: torch.Tensor | float) -> torch.Tensor:
-    """v* = v + K r. velocity, residual: [B,n,3]; gain: scalar or [n] (per target) -> [B,n,3]."""
-    if isinstance(gain, torch.Tensor) and gain.dim() == 1:
-        gain = gain[:, None]
-    return velocity + gain * residual
+    """v* = v + K r in one operation. velocity, residual: [B,n,3]; gain: a scalar, or per target [n]
+    or [n,1] (the tracker keeps it as [n,1]) -> [B,n,3]."""
+    if not isinstance(gain, torch.Tensor):
+        return torch.add(velocity, residual, alpha=float(gain))
+    return torch.addcmul(velocity, gain[:, None] if gain.dim() == 1 else gain, residual)

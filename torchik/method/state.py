@@ -49,6 +49,10 @@ class StepDiagnostics:
     qp_time: float = 0.0
 
 
+PER_SUBJECT = ("mnte", "residual_norm", "active_constraints", "solved", "dropped", "projected")  # [B] each step
+PER_BATCH = ("step_time", "kinematics_time", "qp_time")  # seconds, one per step
+
+
 @dataclass(frozen=True)
 class TargetSequence:
     """Targets over time: time [T] s (strictly increasing); fields as Targets with a leading T."""
@@ -69,9 +73,10 @@ class TargetSequence:
 @dataclass
 class Trajectory:
     """A tracked sequence: time [T]; base_position [T,B,3]; base_rotation [T,B,3,3];
-    joint_positions [T,B,n]; velocity [T,B,6+n]; and the step diagnostics stacked over time
+    joint_positions [T,B,n]; velocity [T,B,6+n]; the step diagnostics stacked over time
     (mnte [T,B], residual_norm [T,B,n_t], active_constraints [T,B], solved [T,B], dropped [T,B],
-    projected [T,B], step_time [T])."""
+    projected [T,B], step_time [T], kinematics_time [T], qp_time [T]); interrupted: the run
+    was stopped (Ctrl-C) before the end of its targets."""
 
     time: torch.Tensor
     base_position: torch.Tensor
@@ -79,3 +84,15 @@ class Trajectory:
     joint_positions: torch.Tensor
     velocity: torch.Tensor
     diagnostics: dict[str, torch.Tensor] = field(default_factory=dict)
+    interrupted: bool = False
+
+    @classmethod
+    def from_steps(cls, time: torch.Tensor, states: list[State], diagnostics: list[StepDiagnostics],
+                   interrupted: bool = False) -> "Trajectory":
+        """The trajectory of a run's steps: time [T], one State and StepDiagnostics per step."""
+        stack = lambda items, name: torch.stack([getattr(x, name) for x in items])  # noqa: E731
+        stacked = {name: stack(diagnostics, name) for name in PER_SUBJECT}
+        for name in PER_BATCH:
+            stacked[name] = torch.tensor([getattr(d, name) for d in diagnostics], dtype=torch.float64)
+        return cls(time, stack(states, "base_position"), stack(states, "base_rotation"),
+                   stack(states, "joint_positions"), stack(states, "velocity"), stacked, interrupted)

@@ -21,10 +21,19 @@ J_p^T W J_p from their Jacobians.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import torch
 
 from .kinematics import KinematicModel, LinkSelection
+
+
+class Objective(NamedTuple):
+    """The step's objective 1/2 nu^T H nu + g^T nu: H [B,N,N] (None when a structured solver builds
+    its own) and g [B,N]."""
+
+    H: torch.Tensor | None
+    g: torch.Tensor
 
 
 @dataclass(frozen=True)
@@ -74,7 +83,7 @@ class TaskStructure:
 def normal_equations(structure: TaskStructure, joint_axes: torch.Tensor, position_jacobian: torch.Tensor | None,
                      v_position: torch.Tensor, v_orientation: torch.Tensor, damping: float,
                      w_position: torch.Tensor | None = None, w_orientation: torch.Tensor | None = None,
-                     hessian: bool = True):
+                     hessian: bool = True) -> Objective:
     """H [B,N,N] and g [B,N] of min ||v* - J nu||^2 + damping ||nu||^2, N = 6 + n.
 
     joint_axes: [B,n,3] world axes; position_jacobian: [B,n_j,6,N] the Jacobians of
@@ -111,4 +120,4 @@ def normal_equations(structure: TaskStructure, joint_axes: torch.Tensor, positio
             H = H + Jp.transpose(1, 2) @ Jp
         weighted_p = v[:, : v_position.shape[1]]
         g = g - (Jp.transpose(1, 2) @ weighted_p[:, off_base].flatten(1).unsqueeze(-1)).squeeze(-1)
-    return H, g
+    return Objective(H, g)

@@ -31,10 +31,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..method.settings import TrackerSettings
+
 BATCHES = (1, 64, 1024, 8192)
 MODEL_NAMES = ("human66", "human48", "icub")
 LOOPS = ("torchik+piqp", "pinocchio+daqp", "pinocchio+piqp")
-GAIN, DAMPING, RATE = 20.0, 1e-9, 100.0
+GAIN, DAMPING, RATE = TrackerSettings.position_gain, TrackerSettings.damping, 100.0
 
 
 @dataclass

@@ -33,6 +33,7 @@ from ..method.kinematics import KinematicModel
 from ..method.limits import LimitSettings
 from ..method.metrics import mnte, summary
 from ..method.models import load_model
+from ..method.settings import TrackerSettings
 from ..method.tracker import DynamicalIK
 from .evaluation import link_motion
 
@@ -90,7 +91,7 @@ def limit_excess(model: KinematicModel, joint_positions: torch.Tensor) -> float:
     return float(excess)
 
 
-def retarget(recording: Recording, rate: float = 100.0, gain: float = 20.0, progress: bool | None = None,
+def retarget(recording: Recording, rate: float = 100.0, gain: float = TrackerSettings.position_gain, progress: bool | None = None,
              transient: float = 2.0, limits: LimitSettings = LimitSettings()) -> tuple[Retargeted, dict]:
     """Retarget a recording in the human models' links to iCub at `rate` Hz with gain K (1/s) and
     the tracker's `limits` (limits.max_rate caps every joint's rate, rad/s). Returns the iCub

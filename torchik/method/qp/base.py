@@ -32,6 +32,13 @@ class QPProblem:
         """H as a dense [B,N,N] matrix (formed from `tree` when H is None)."""
         return self.H if self.H is not None else self.tree.dense()
 
+    def active(self, x: torch.Tensor, tolerance: float = 1e-9) -> torch.Tensor:
+        """[B] bounds (lower or upper) and linear rows that x [B,N] touches (infinite bounds never)."""
+        count = ((x <= self.lb + tolerance) | (x >= self.ub - tolerance)).sum(-1)
+        if self.G is not None:
+            count = count + ((self.G @ x.unsqueeze(-1)).squeeze(-1) >= self.h - tolerance).sum(-1)
+        return count
+
 
 @dataclass(frozen=True)
 class QPSolution:

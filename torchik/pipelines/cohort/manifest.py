@@ -41,7 +41,7 @@ from ...errors import InputError, TorchikError
 from ...io.maps import calibration_frame, load_map
 from ...method.models import MODELS, HumanSubject
 from ...method.qp import BACKENDS
-from ...method.settings import SCHEMES
+from ...method.settings import SCHEMES, TrackerSettings
 
 REQUIRED = ("trial", "subject", "recording")
 TRIAL_ID = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
@@ -67,8 +67,8 @@ class TrialSpec:
     calibration: str | None = None
     calibration_frame: int | str | None = None
     scheme: str = "midpoint"
-    position_gain: float = 20.0
-    orientation_gain: float = 20.0
+    position_gain: float = TrackerSettings.position_gain
+    orientation_gain: float = TrackerSettings.orientation_gain
     backend: str = "auto"
     transient: float = 2.0
     rrd: bool = False
@@ -241,7 +241,7 @@ def _spec(row: dict, folder: Path) -> TrialSpec:
             raise ValueError(f"{column}: {exc}") from None
     if not TRIAL_ID.match(values["trial"]):
         raise ValueError(f"trial id {values['trial']!r}: use letters, digits, '_', '.' and '-' (it names a folder)")
-    gain = values.pop("gain", 20.0)
+    gain = values.pop("gain", TrackerSettings.position_gain)
     values.setdefault("position_gain", gain)
     values.setdefault("orientation_gain", gain)
     values["recording"] = _existing(folder, values["recording"], "recording")
