@@ -1,7 +1,8 @@
 # Two commands for a fresh machine:
-#   make demo   create .venv, install torchik (CPU build of torch), track the built-in walking scenario and
-#               write walk.rrd (open it with .venv/bin/rerun walk.rrd) and walk.json
+#   make demo   create .venv, install torchik (CPU build of torch) with what the demo uses, track the built-in
+#               walking scenario and write walk.rrd (open it with .venv/bin/rerun walk.rrd) and walk.json
 #   make test   create .venv, install torchik with the test extras, run the test suite
+# make check: ruff and mypy (what CI runs beside the tests).
 # For a CUDA build of torch:  make demo TORCH="torch==2.13.0 --index-url https://download.pytorch.org/whl/cu128"
 
 PYTHON ?= python3
@@ -9,7 +10,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test bench clean
+.PHONY: demo test check bench clean
 
 $(VENV)/.torch:
 	$(PYTHON) -m venv $(VENV)
@@ -18,11 +19,15 @@ $(VENV)/.torch:
 	touch $@
 
 $(VENV)/.torchik: $(VENV)/.torch pyproject.toml
-	$(BIN)/pip install -q -e .
+	$(BIN)/pip install -q -e ".[viz,robots]"
 	touch $@
 
 $(VENV)/.torchik-test: $(VENV)/.torch pyproject.toml
 	$(BIN)/pip install -q -e ".[test]"
+	touch $@
+
+$(VENV)/.torchik-dev: $(VENV)/.torch pyproject.toml
+	$(BIN)/pip install -q -e ".[dev]"
 	touch $@
 
 demo: $(VENV)/.torchik
@@ -32,6 +37,10 @@ demo: $(VENV)/.torchik
 
 test: $(VENV)/.torchik-test
 	$(BIN)/python -m pytest -q
+
+check: $(VENV)/.torchik-dev
+	$(BIN)/ruff check torchik tests experiments
+	$(BIN)/mypy
 
 bench: $(VENV)/.torchik-test
 	$(BIN)/python experiments/bench_kinematics.py

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import InputError, MissingDependencyError
 from ..method.models import MODELS
 from .common import add_command
 from .track import EXAMPLES
@@ -47,7 +47,13 @@ def run(args: argparse.Namespace) -> int:
         return 0
     names = MODELS if not args.links else [args.links]
     for name in names:
-        model = load_model(name, None if name == "icub" else subject)
+        try:
+            model = load_model(name, None if name == "icub" else subject)
+        except MissingDependencyError as exc:
+            if args.links:
+                raise
+            print(f"{name}: not available here: {exc}")
+            continue
         print(model.summary())
         print(f"    tracked links ({len(TRACKED_LINKS[name])}): {', '.join(TRACKED_LINKS[name])}")
         if args.links:

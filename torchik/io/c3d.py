@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..errors import optional
 from ..method import so3
 from .recording import Recording, RecordingError, angular_velocity_from_orientations
 
@@ -44,10 +45,7 @@ def read_c3d(path: str | Path, base_link: str = "PEL", units: str | None = None)
     path = Path(path)
     if not path.is_file():
         raise RecordingError(f"{path}: no such file")
-    try:
-        import ezc3d
-    except ImportError as exc:
-        raise RecordingError("reading C3D needs the 'ezc3d' package: pip install ezc3d") from exc
+    ezc3d = optional("ezc3d", "io", "reading C3D files")
     try:
         c3d = ezc3d.c3d(str(path), extract_forceplat_data=False)
     except Exception as exc:  # ezc3d raises plain exceptions for truncated or foreign files

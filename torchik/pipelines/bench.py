@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..errors import optional
 from ..method.settings import TrackerSettings
 
 BATCHES = (1, 64, 1024, 8192)
@@ -141,7 +142,7 @@ class PinocchioTracker:
     base's variables, which the damping and the joint bounds do not see."""
 
     def __init__(self, name: str, solver: str):
-        import pinocchio as pin
+        pin = optional("pinocchio", "bench", "torchik bench's per-subject loops (or --no-loops)")
 
         from ..method.models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_model
 
@@ -259,7 +260,8 @@ def run(models=MODEL_NAMES, batches=BATCHES, device: str = "cpu", dtype=torch.fl
     import qpsolvers
 
     plan = [(name, "batched", B) for name in models for B in batches]
-    if loops:
+    if loops:  # before any measurement: a missing library is said at once
+        optional("pinocchio", "bench", "torchik bench's per-subject loops (or --no-loops)")
         plan += [(name, loop, 1) for name in models for loop in LOOPS
                  if loop == "torchik+piqp" or loop.split("+")[1] in qpsolvers.available_solvers]
     if progress:

@@ -35,9 +35,12 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-import rerun as rr
-import rerun.blueprint as rrb
 import torch
+
+from ..errors import optional
+
+rr = optional("rerun", "viz", "writing rerun recordings")
+rrb = optional("rerun.blueprint", "viz", "writing rerun recordings")
 
 from ..method import so3
 from ..errors import InputError

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import torch
 
-from ...errors import ModelError
+from ...errors import ModelError, optional
 from ..kinematics import KinematicModel, LinearLimits
 
 ICUB_ROBOT = "iCubGazeboV2_5"
@@ -31,10 +31,7 @@ _ARM_JOINTS = ("shoulder_pitch", "shoulder_roll", "shoulder_yaw", "elbow", "wris
 
 def icub_urdf_path() -> Path:
     """Path of iCubGazeboV2_5's URDF inside the installed `icub-models` package."""
-    try:
-        import icub_models
-    except ImportError as exc:  # a runtime dependency; say how to get it
-        raise ModelError("the iCub model needs the 'icub-models' package: pip install icub-models") from exc
+    icub_models = optional("icub_models", "robots", "the iCub model")
     path = Path(icub_models.get_model_file(ICUB_ROBOT))
     if not path.is_file():
         raise ModelError(f"icub-models has no {ICUB_ROBOT} model at {path}")

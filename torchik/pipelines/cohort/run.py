@@ -30,7 +30,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
-from ...errors import InputError
+from ...errors import InputError, optional
 from .manifest import TrialSpec, read_manifest
 from .plan import Batch, batch_size_for, plan_batches
 from .summary import write_summary
@@ -115,6 +115,7 @@ def dask_client(client=None, scheduler: str | None = None, workers: int | None =
     if client is not None:
         yield client, max(1, sum(client.nthreads().values()))
         return
+    optional("distributed", "cohort", "torchik cohort")
     from distributed import Client, LocalCluster
 
     if scheduler:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
+from ...errors import optional
 from ...io.files import replacing
 from .manifest import TrialSpec
 from .trial import COLUMNS, load_result
@@ -30,7 +31,7 @@ def summary_rows(out: Path, specs: list[TrialSpec], fingerprints: list[str]) -> 
 
 def write_summary(out: Path, specs: list[TrialSpec], fingerprints: list[str]) -> list[dict]:
     """Write out/summary.csv and out/summary.parquet from what is on disk; returns the rows."""
-    import pyarrow as pa
+    pa = optional("pyarrow", "cohort", "the cohort's summary.parquet")
     import pyarrow.parquet as pq
 
     rows = summary_rows(out, specs, fingerprints)

@@ -20,14 +20,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ...errors import optional
 from .analysis import Analysis
 from .effect import SIGNIFICANT
 from .loop import Diagnosis
 
 
 def _pyplot():
-    import matplotlib
-
+    matplotlib = optional("matplotlib", "viz", "the diagnosis report's figures")
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -159,8 +159,7 @@ def write_rrd(d: Diagnosis, path: Path) -> Path:
     """The residual angle (deg) and the gyro's disagreement |e| (rad/s) per link, before and after."""
     import uuid
 
-    import rerun as rr
-
+    rr = optional("rerun", "viz", "the diagnosis' rerun recording (or --no-rrd)")
     rec = rr.RecordingStream("torchik-diagnosis", recording_id=uuid.uuid4())
     rec.save(str(path))
     for when, (analysis, b) in (("before", d.first), ("after", d.last)):
