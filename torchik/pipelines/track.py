@@ -9,10 +9,9 @@ from ..errors import InputError
 from ..io.recording import Recording
 from ..io.targets import recording_targets
 from ..method.kinematics import KinematicModel
-from ..method.metrics import summary
 from ..method.tracker import DynamicalIK
 from ..method.state import State, TargetSequence, Trajectory
-from .evaluation import tracking_errors, tracking_statistics
+from .evaluation import summary, tracking_errors, tracking_statistics
 
 
 def run_interruptible(tracker: DynamicalIK, sequence: TargetSequence, initial: State | None = None,
