@@ -1,4 +1,4 @@
-"""The paper's experiments: the same as `torchik experiment paper` (see torchik/experiment.py).
+"""The paper's experiments: the same as `torchik experiment paper` (see torchik/pipelines/experiment/).
 
     python experiments/paper.py --out paper/ [--data FILE --map MAP] [--duration 10] ...
 """

@@ -5,7 +5,8 @@ import math
 import torch
 
 from torchik.method import so3
-from torchik.method.metrics import angular_velocity_rmse, mnte, orientation_error, summary
+from torchik.method.metrics import angular_velocity_rmse, mnte, orientation_error
+from torchik.pipelines.evaluation import summary
 
 
 def test_mnte_is_zero_for_identical_rotations_and_a_quarter_for_60_degrees_on_one_of_two_links():

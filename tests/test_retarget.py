@@ -11,10 +11,9 @@ import torch
 from torchik.method import so3
 from torchik.method.baselines import WholeBodyIK
 from torchik.cli import main
-from torchik.pipelines.experiment import human_to_icub
 from torchik.io import Recording, save_recording
 from torchik.method.models import TRACKED_LINKS, load_model
-from torchik.pipelines.retarget import resample, retarget
+from torchik.pipelines.retarget import human_to_icub, resample, retarget
 from torchik.io.targets import recording_targets
 from torchik.synthetic.scenarios import scenario
 from torchik.method.state import State

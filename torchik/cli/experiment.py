@@ -78,7 +78,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--rate", type=float, default=Settings.rate, help="scenario rate, Hz (default 100)")
     parser.add_argument("--transient", type=float, default=Settings.transient,
                         help="seconds left out of the statistics (default 2, as the paper)")
-    parser.add_argument("--gain", type=float, default=Settings.gain, help="K of the dynamical method, 1/s (default 20)")
+    parser.add_argument("--gain", type=float, default=Settings.gain,
+                        help=f"K of the dynamical method, 1/s (default {Settings.gain:g})")
     parser.add_argument("--backend", choices=("batched", "piqp"), default=Settings.backend,
                         help="QP backend of every method (default batched)")
     parser.add_argument("--tolerance", type=float, default=Settings.tolerance,

@@ -2,7 +2,7 @@
 
 MNTE  = 1/n_o sum_i tr(I - R_hat_i^T R_i) / 2          (mean of 1 - cos(angle): 0 to 2)
 RMSE  = sqrt(1/n_o sum_i ||omega_i - omega_hat_i||^2 / 3)
-Statistics are taken after a transient (the paper discards the first 2 s).
+Statistics over time (after the transient the paper discards) are `pipelines.evaluation`'s.
 
 tr(I - R_hat^T R)/2 = 1 - cos(angle) spans 0 (equal) to 2 (half a turn apart), not 0 to 1 as the
 paper's text says.
@@ -43,15 +43,3 @@ def angular_velocity_rmse(omega_target: torch.Tensor, omega_estimate: torch.Tens
     """RMS angular-velocity error. omega_*: [..., n_o, 3] -> [...] rad/s."""
     return ((omega_target - omega_estimate).square().sum(-1) / 3.0).mean(-1).sqrt()
 
-
-def after_transient(values: torch.Tensor, time: torch.Tensor, transient: float = 2.0) -> torch.Tensor:
-    """values [T,...] at t >= time[0] + transient (all of them when the sequence is shorter)."""
-    keep = time >= time[0] + transient
-    return values[keep] if bool(keep.any()) else values
-
-
-def summary(values: torch.Tensor, time: torch.Tensor, transient: float = 2.0) -> dict[str, float]:
-    """Median, 99th percentile, mean and max of values [T,...] over t >= time[0] + transient
-    (all samples when the sequence is shorter than that)."""
-    v = after_transient(values, time, transient).flatten().double()
-    return dict(median=float(v.median()), p99=float(v.quantile(0.99)), mean=float(v.mean()), max=float(v.max()))

@@ -1,5 +1,7 @@
 """How well a trajectory tracks its targets: the estimated link motion, the paper's metrics at
-every sample, and their statistics after the transient."""
+every sample (`method.metrics` has their formulas), and their statistics after the transient.
+`torchik track`, `torchik retarget`, the cohort, the diagnosis and the paper's experiment all
+measure with these."""
 
 from __future__ import annotations
 
@@ -9,7 +11,7 @@ import torch
 
 from ..io.recording import Recording
 from ..method.kinematics import KinematicModel
-from ..method.metrics import angular_velocity_rmse, mnte, summary
+from ..method.metrics import angular_velocity_rmse, mnte
 from ..method.state import TargetSequence, Trajectory
 
 
@@ -31,12 +33,15 @@ def time_chunks(model: KinematicModel, trajectory: Trajectory, chunk: int = 4096
         yield steps, m, p, R, s
 
 
-def link_motion(model: KinematicModel, trajectory: Trajectory, links, scheme: str = "midpoint", chunk: int = 4096):
+def link_motion(model: KinematicModel, trajectory: Trajectory, links, scheme: str | None = "midpoint",
+                chunk: int = 4096) -> tuple[torch.Tensor, torch.Tensor]:
     """Estimated link rotations [T,B,L,3,3] and world angular velocities [T,B,L,3], computed a few
     time steps at a time from the joint axes (omega_L = omega_B + sum_j M_Lj s_dot_j a_j).
 
-    The midpoint scheme's nu_k is the mean velocity over [t_{k-1}, t_k]; its estimate at t_k is the
-    mean of the two steps around it. The paper's nu_k is meant at t_k and is taken as it is."""
+    scheme: what the trajectory's velocities mean. The midpoint scheme's nu_k is the mean velocity
+    over [t_{k-1}, t_k]; its estimate at t_k is the mean of the two steps around it. The paper's
+    nu_k is meant at t_k and is taken as it is, as are velocities of any other source (None: the
+    instantaneous methods' central differences)."""
     links = tuple(links)
     mask = model.select(links).ancestor_mask  # [L,n]
     velocity = trajectory.velocity  # [T,B,6+n]
@@ -54,33 +59,53 @@ def link_motion(model: KinematicModel, trajectory: Trajectory, links, scheme: st
     return torch.cat(rotations), torch.cat(omegas)
 
 
+def known_targets(sequence: TargetSequence, frames: int | None = None) -> torch.Tensor:
+    """[T,B] bool: every orientation and angular-velocity target of the sample is given (a missing
+    one is NaN), over the first `frames` samples (default all)."""
+    R, w = sequence.rotation[:frames], sequence.angular_velocity[:frames]
+    return torch.isfinite(R).flatten(-3).all(-1) & torch.isfinite(w).flatten(-2).all(-1)
+
+
 def tracking_errors(model: KinematicModel, trajectory: Trajectory, sequence: TargetSequence, links,
-                    scheme: str = "midpoint") -> dict[str, torch.Tensor]:
+                    scheme: str | None = "midpoint") -> dict[str, torch.Tensor]:
     """The paper's metrics of every subject at every sample: mnte [T,B] and rmse [T,B] (rad/s),
-    estimate at t_k against the targets at t_k (`sequence` cut to the trajectory's length).
-    NaN where a target is missing."""
+    estimate at t_k against the targets at t_k (`sequence` cut to the trajectory's length; scheme
+    as `link_motion`'s). NaN where any target of the sample is missing."""
     T = len(trajectory.time)
     R_hat, w_hat = link_motion(model, trajectory, links, scheme)
-    return dict(mnte=mnte(sequence.rotation[:T], R_hat), rmse=angular_velocity_rmse(sequence.angular_velocity[:T], w_hat))
+    known = known_targets(sequence, T)
+    nan = torch.tensor(float("nan"), dtype=R_hat.dtype, device=R_hat.device)
+    return dict(mnte=torch.where(known, mnte(sequence.rotation[:T], R_hat), nan),
+                rmse=torch.where(known, angular_velocity_rmse(sequence.angular_velocity[:T], w_hat), nan))
+
+
+def after_transient(values: torch.Tensor, time: torch.Tensor, transient: float = 2.0) -> torch.Tensor:
+    """values [T,...] at t >= time[0] + transient (all of them when the sequence is shorter)."""
+    keep = time >= time[0] + transient
+    return values[keep] if bool(keep.any()) else values
+
+
+def summary(values: torch.Tensor, time: torch.Tensor, transient: float = 2.0) -> dict[str, float]:
+    """Median, 99th percentile, mean and max of values [T,...] over t >= time[0] + transient
+    (all samples when the sequence is shorter than that)."""
+    v = after_transient(values, time, transient).flatten().double()
+    return dict(median=float(v.median()), p99=float(v.quantile(0.99)), mean=float(v.mean()), max=float(v.max()))
 
 
 def tracking_statistics(trajectory: Trajectory, sequence: TargetSequence, recording: Recording,
                         model: KinematicModel, transient: float) -> dict:
     """What `torchik track` reports of subject 0's accuracy, after `transient` seconds and over the
-    frames whose targets are all known: mnte and angular_velocity_rmse (`metrics.summary` dicts,
-    None when no frame is known) and, when the recording carries the model's joint angles,
-    joint_error_rad (max, rms). trajectory: [T,1,...] with the mnte and rmse diagnostics
-    (`tracking_errors`); sequence: its targets (at least T frames)."""
+    frames whose targets are all known: mnte and angular_velocity_rmse (`summary` dicts, None when
+    no frame is known) and, when the recording carries the model's joint angles, joint_error_rad
+    (max, rms). trajectory: [T,1,...] with the mnte and rmse diagnostics (`tracking_errors`);
+    sequence: its targets (at least T frames)."""
     done, time, d = len(trajectory.time), trajectory.time, trajectory.diagnostics
-    known = (torch.isfinite(sequence.rotation[:done, 0]).flatten(-3).all(-1)
-             & torch.isfinite(sequence.angular_velocity[:done, 0]).flatten(-2).all(-1))  # [T]
+    known = known_targets(sequence, done)[:, 0]  # [T]
     any_known = bool(known.any())
     out = dict(mnte=summary(d["mnte"][known, 0], time[known], transient) if any_known else None,
                angular_velocity_rmse=summary(d["rmse"][known, 0], time[known], transient) if any_known else None)
     if recording.joint_positions is not None and recording.joint_names == model.joint_names:
         truth = torch.from_numpy(recording.joint_positions[:done]).to(trajectory.joint_positions)
-        err = (trajectory.joint_positions[:, 0] - truth).abs()
-        keep = time >= time[0] + transient
-        err = err[keep] if bool(keep.any()) else err
+        err = after_transient((trajectory.joint_positions[:, 0] - truth).abs(), time, transient)
         out["joint_error_rad"] = dict(max=float(err.max()), rms=float(err.square().mean().sqrt()))
     return out

@@ -31,11 +31,10 @@ from ..method import so3
 from ..method.baselines import WholeBodyIK
 from ..method.kinematics import KinematicModel
 from ..method.limits import LimitSettings
-from ..method.metrics import mnte, summary
 from ..method.models import load_model
 from ..method.settings import TrackerSettings
 from ..method.tracker import DynamicalIK
-from .evaluation import link_motion
+from .evaluation import known_targets, summary, tracking_errors
 
 LIMIT_TOLERANCE = 1e-6  # rad (and the units of A s <= b): the largest excursion accepted in the output
 MIN_RATE = 50.0  # Hz: slower streams make a position controller's steps too coarse
@@ -91,8 +90,9 @@ def limit_excess(model: KinematicModel, joint_positions: torch.Tensor) -> float:
     return float(excess)
 
 
-def retarget(recording: Recording, rate: float = 100.0, gain: float = TrackerSettings.position_gain, progress: bool | None = None,
-             transient: float = 2.0, limits: LimitSettings = LimitSettings()) -> tuple[Retargeted, dict]:
+def retarget(recording: Recording, rate: float = 100.0, gain: float = TrackerSettings.orientation_gain,
+             progress: bool | None = None, transient: float = 2.0,
+             limits: LimitSettings = LimitSettings()) -> tuple[Retargeted, dict]:
     """Retarget a recording in the human models' links to iCub at `rate` Hz with gain K (1/s) and
     the tracker's `limits` (limits.max_rate caps every joint's rate, rad/s). Returns the iCub
     trajectories and a report (MNTE after `transient` s, the limits' margin, the rate)."""
@@ -115,11 +115,8 @@ def retarget(recording: Recording, rate: float = 100.0, gain: float = TrackerSet
     # its coupled shoulder limits, and the tracker would return from there at a bounded rate only
     start = WholeBodyIK(icub, links).solve(sequence[0], tracker.initial_state(sequence[0])).state
     trajectory = tracker.run(sequence, start, progress=progress)
-    R_hat = link_motion(icub, trajectory, links, "midpoint")[0][:, 0]
-    R_target = sequence.rotation[:, 0]
-    known = torch.isfinite(R_target).flatten(-3).all(-1)
-    error = torch.where(known, mnte(torch.where(known[:, None, None, None], R_target, torch.eye(3, dtype=R_target.dtype)),
-                                    R_hat), torch.nan)
+    error = tracking_errors(icub, trajectory, sequence, links)["mnte"][:, 0]  # NaN where a target is missing
+    known = known_targets(sequence)[:, 0]
     s = trajectory.joint_positions[:, 0]
     host = lambda x: x.detach().cpu().numpy()  # noqa: E731
     result = Retargeted(host(trajectory.time), icub.joint_names, host(s), host(trajectory.velocity[:, 0, 6:]),

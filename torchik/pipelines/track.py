@@ -9,11 +9,10 @@ import numpy as np
 from ..io.recording import Recording
 from ..io.targets import recording_targets
 from ..method.kinematics import KinematicModel
-from ..method.metrics import summary
 from ..method.settings import TrackerSettings
 from ..method.state import Trajectory
 from ..method.tracker import DynamicalIK
-from .evaluation import tracking_errors, tracking_statistics
+from .evaluation import summary, tracking_errors, tracking_statistics
 
 
 def track_recording(model: KinematicModel, recording: Recording, links, settings: TrackerSettings | None = None,
