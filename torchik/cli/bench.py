@@ -9,6 +9,7 @@ from dataclasses import asdict
 
 import torch
 
+from ..method.models import MODELS
 from ..pipelines import bench
 
 
@@ -19,7 +20,7 @@ def add_parser(subparsers) -> None:
         description=bench.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="examples:\n  torchik bench\n  torchik bench --models human66 --batch 1024 --no-loops\n"
                "  torchik bench --device cuda --batch 1024 65536 --json gpu.json")
-    parser.add_argument("--models", nargs="+", default=list(bench.MODEL_NAMES), choices=bench.MODEL_NAMES)
+    parser.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS)
     parser.add_argument("--batch", nargs="+", type=int, default=list(bench.BATCHES), help="batch sizes (default 1 64 1024 8192)")
     parser.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
     parser.add_argument("--dtype", default="float64", choices=("float64", "float32"))

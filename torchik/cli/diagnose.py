@@ -16,6 +16,7 @@ from pathlib import Path
 
 from .common import add_map_arguments
 from ..errors import InputError
+from ..method.settings import TrackerSettings
 
 EXAMPLES = """examples:
   torchik diagnose walk.npz --model human48 --report diag/
@@ -49,7 +50,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                                                        "an earlier diagnosis wrote)")
     parser.add_argument("--report", required=True, metavar="DIR", help="the folder to write the report into")
     add_map_arguments(parser, "the model's links")
-    parser.add_argument("--gain", type=float, default=20.0, help="K of the tracker, 1/s (default 20)")
+    parser.add_argument("--gain", type=float, default=TrackerSettings.position_gain,
+                        help=f"K of the tracker, 1/s (default {TrackerSettings.position_gain:g})")
     parser.add_argument("--max-effects", type=int, default=8, help="stop after adding this many effects (default 8)")
     parser.add_argument("--kinds", type=_kinds, default=KINDS, metavar="K1,K2",
                         help=f"the candidate effects, comma-separated (default all: {','.join(KINDS)})")

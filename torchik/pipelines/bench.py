@@ -32,10 +32,10 @@ import numpy as np
 import torch
 
 from ..errors import optional
+from ..method.models import MODELS
 from ..method.settings import TrackerSettings
 
 BATCHES = (1, 64, 1024, 8192)
-MODEL_NAMES = ("human66", "human48", "icub")
 LOOPS = ("torchik+piqp", "pinocchio+daqp", "pinocchio+piqp")
 GAIN, DAMPING, RATE = TrackerSettings.position_gain, TrackerSettings.damping, 100.0
 
@@ -254,7 +254,7 @@ def bench_pinocchio_loop(name: str, solver: str, steps: int, warmup: int = 10) -
     return Measurement(name, f"pinocchio+{solver}", 1, steps, seconds, steps / seconds, final_mnte=error)
 
 
-def run(models=MODEL_NAMES, batches=BATCHES, device: str = "cpu", dtype=torch.float64, loops: bool = True,
+def run(models=MODELS, batches=BATCHES, device: str = "cpu", dtype=torch.float64, loops: bool = True,
         loop_steps: int = 200, min_seconds: float = 2.0, max_steps: int = 50, progress: bool = True) -> list[Measurement]:
     """Every measurement of the benchmark, in the order of the table."""
     import qpsolvers

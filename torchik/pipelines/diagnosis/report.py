@@ -21,17 +21,13 @@ import numpy as np
 import torch
 
 from ...errors import optional
+from ..plotting import pyplot
 from .analysis import Analysis
 from .effect import SIGNIFICANT
 from .loop import Diagnosis
 
 
-def _pyplot():
-    matplotlib = optional("matplotlib", "viz", "the diagnosis report's figures")
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+_pyplot = pyplot
 
 
 def _angle(analysis: Analysis, b: int) -> np.ndarray:

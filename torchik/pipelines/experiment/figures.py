@@ -10,16 +10,11 @@ import torch
 
 from ...method.limits import LimitSettings, velocity_bounds
 from ..evaluation import after_transient
+from ..plotting import pyplot
 from .cases import cached_model
 from .runs import METHODS, Run
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")  # files only, no display
-    import matplotlib.pyplot as plt
-
-    return plt
+_pyplot = pyplot
 
 
 COLOURS = {"whole-body": "tab:blue", "pair-wise": "tab:orange", "dynamical (paper)": "tab:green",
