@@ -2,9 +2,9 @@
 
     import torchik as tk
 
-    model = tk.load_model("human66")
-    recording = tk.read("walk.mvnx")                 # or tk.scenario("walking", model, tk.TRACKED_LINKS["human66"])
-    trajectory, report = tk.track(model, recording, tk.TRACKED_LINKS["human66"])
+    model, links = tk.load_model("human66"), tk.TRACKED_LINKS["human66"]
+    recording = tk.read("walk.mvnx")                 # or tk.scenario("walking", model, links)
+    trajectory, report = tk.track(model, recording, links)
 
 The package has four layers, each importing only from those below it: `method/` (the paper's
 algorithm), `io/` and `synthetic/` (data), `pipelines/` (track, retarget, diagnosis, cohort,
@@ -19,10 +19,13 @@ from .method.kinematics import KinematicModel, LinearLimits, LinkKinematics
 from .method.limits import LimitSettings
 from .method.metrics import angular_velocity_rmse, mnte, orientation_error
 from .method.models import MODELS, TRACKED_LINKS, HumanSubject, load_model
+from .method.settings import TrackerSettings
 from .method.state import State, StepDiagnostics, TargetSequence, Trajectory
 from .method.targets import Targets
 from .method.tracker import DynamicalIK
+from .pipelines.diagnosis.loop import diagnose
 from .pipelines.memory import keep_freed_memory
+from .pipelines.retarget import retarget
 from .pipelines.track import track_recording as track
 from .synthetic.motion import periodic_motion, targets_from_motion
 from .synthetic.scenarios import SCENARIOS, scenario
@@ -34,13 +37,22 @@ __all__ = [
     "load_model", "MODELS", "TRACKED_LINKS", "HumanSubject", "KinematicModel", "LinearLimits", "LinkKinematics",
     "so3",
     # the tracker
-    "DynamicalIK", "LimitSettings", "State", "StepDiagnostics", "Targets", "TargetSequence", "Trajectory",
+    "DynamicalIK", "TrackerSettings", "LimitSettings", "State", "StepDiagnostics", "Targets", "TargetSequence", "Trajectory",
     "mnte", "angular_velocity_rmse", "orientation_error",
     # data
     "read", "Recording", "load_recording", "save_recording", "save_trajectory", "load_map", "map_recording",
     "recording_targets", "scenario", "SCENARIOS", "periodic_motion", "targets_from_motion",
     # pipelines
-    "track", "keep_freed_memory",
+    "track", "retarget", "diagnose", "log_trajectory", "keep_freed_memory",
     # errors
     "TorchikError", "ModelError", "UnknownLinkError", "InputError", "RecordingError",
 ]
+
+
+def __getattr__(name: str):
+    # rerun is an optional dependency (torchik[viz]): imported when a recording is written, not with torchik
+    if name == "log_trajectory":
+        from .pipelines.rrd import log_trajectory
+
+        return log_trajectory
+    raise AttributeError(f"module 'torchik' has no attribute {name!r}")
