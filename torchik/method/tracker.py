@@ -150,10 +150,10 @@ class DynamicalIK:
             p, R, s = self.model.zero_configuration(batch)
             state = State(p, R, s, torch.zeros(batch, 6 + self.model.n_dof, dtype=p.dtype, device=p.device))
         B = state.base_position.shape[0]
-        self.model._check("state.base_position", state.base_position, (B, 3))
-        self.model._check("state.base_rotation", state.base_rotation, (B, 3, 3))
-        self.model._check("state.joint_positions", state.joint_positions, (B, self.model.n_dof))
-        self.model._check("state.velocity", state.velocity, (B, 6 + self.model.n_dof))
+        self.model.check_input("state.base_position", state.base_position, (B, 3))
+        self.model.check_input("state.base_rotation", state.base_rotation, (B, 3, 3))
+        self.model.check_input("state.joint_positions", state.joint_positions, (B, self.model.n_dof))
+        self.model.check_input("state.velocity", state.velocity, (B, 6 + self.model.n_dof))
         self._state = state.clone()
         self._rotation = orthonormalize(self._state.base_rotation)
         self._previous = self._before = self._previous_valid = self._before_valid = None
