@@ -44,7 +44,7 @@ rrb = optional("rerun.blueprint", "viz", "writing rerun recordings")
 
 from ..method import so3
 from ..errors import InputError
-from ..method.kinematics import KinematicModel, _read_urdf
+from ..method.kinematics import KinematicModel, read_urdf
 from ..io.files import replacing
 from .evaluation import time_chunks
 from ..method.state import TargetSequence, Trajectory
@@ -74,7 +74,7 @@ def visuals(urdf: str | Path) -> dict[str, list[Visual]]:
     """The visual shapes of a URDF (a file or its XML text), by link name. Mesh files given as
     package://PACKAGE/... are looked for in a PACKAGE folder above the URDF's; a mesh that cannot
     be found is left out with a warning naming it (the skeleton and frames still show the link)."""
-    robot, where = _read_urdf(urdf)
+    robot, where = read_urdf(urdf)
     folder = Path(where).parent if Path(where).is_file() else Path.cwd()
     shapes: dict[str, list[Visual]] = {}
     for link in robot.links:  # build time: a Python walk over the URDF's links is fine
