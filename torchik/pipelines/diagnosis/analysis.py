@@ -64,12 +64,13 @@ def lowpass(x: torch.Tensor, time: torch.Tensor, cutoff: float) -> torch.Tensor:
     if T < 8:
         return x.clone()
     rate = 1.0 / float(torch.diff(time).median())
-    padded = torch.cat((x.flip(0), x, x.flip(0)))
+    x = x.movedim(0, -1)  # time last: the transforms run on contiguous series
+    padded = torch.cat((x.flip(-1), x, x.flip(-1)), dim=-1)
     f = torch.fft.rfftfreq(3 * T, d=1.0 / rate).to(x.dtype)
     gain = torch.clamp((cutoff - f) / (0.3 * cutoff), 0.0, 1.0)
     gain = 0.5 - 0.5 * torch.cos(torch.pi * gain)
-    spectrum = torch.fft.rfft(padded, dim=0) * gain.view(-1, *([1] * (x.dim() - 1)))
-    return torch.fft.irfft(spectrum, n=3 * T, dim=0)[T:2 * T]
+    spectrum = torch.fft.rfft(padded, dim=-1) * gain
+    return torch.fft.irfft(spectrum, n=3 * T, dim=-1)[..., T:2 * T].movedim(-1, 0)
 
 
 @dataclass
@@ -109,6 +110,7 @@ class Analysis:
     rows: torch.Tensor
     joint_axes: torch.Tensor
     trajectory: Trajectory = field(repr=False)
+    _projector: tuple | None = field(default=None, init=False, repr=False, compare=False)  # (b, M): projector(b)
 
     @property
     def batch(self) -> int:
@@ -118,18 +120,36 @@ class Analysis:
         """The rows of link `link`'s orientation in J (after the base's 3 position rows)."""
         return slice(3 + 3 * link, 6 + 3 * link)
 
-    def stacked_residual(self) -> torch.Tensor:
-        """[S,B,R] the residual at the sample times, rows as J's (position, then orientations)."""
+    def stacked_residual(self, b: int | None = None) -> torch.Tensor:
+        """[S,B,R] the residual at the sample times, rows as J's (position, then orientations);
+        [S,R] that of subject b."""
         k = self.sample
-        r = torch.cat((self.r_p[k], self.r[k].flatten(-2)), dim=-1)
-        return torch.where(self.rows, r, 0.0)
+        if b is None:
+            r = torch.cat((self.r_p[k], self.r[k].flatten(-2)), dim=-1)
+            return torch.where(self.rows, r, 0.0)
+        r = torch.cat((self.r_p[k, b], self.r[k, b].flatten(-2)), dim=-1)
+        return torch.where(self.rows[:, b], r, 0.0)
+
+    def projector(self, b: int) -> torch.Tensor:
+        """M = I - J A J^T of subject b [S,R,R], zero on the rows of missing targets (M X is
+        project(b, X)): the candidates' G are a few columns each, and M G a few of M's columns.
+        Kept for the last subject asked, whose candidates are fitted one after the other."""
+        if self._projector is None or self._projector[0] != b:
+            J, A = self.J[:, b], self.A[:, b]
+            M = torch.eye(J.shape[-2], dtype=J.dtype) - J @ (A @ J.transpose(-1, -2))
+            self._projector = (b, M * self.rows[:, b, :, None].to(J.dtype))
+        return self._projector[1]
 
     def project(self, b: int, X: torch.Tensor, J: torch.Tensor | None = None, A: torch.Tensor | None = None) -> torch.Tensor:
         """M X = X - J A J^T X for subject b, X [...,S,R,k] (rows as J's) -> the same, zero on the
         rows of missing targets. J [S,R,C], A [S,C,C]: others than the analysis' (joints.py)."""
         J = self.J[:, b] if J is None else J
         A = self.A[:, b] if A is None else A
-        return (X - J @ (A @ (J.transpose(-1, -2) @ X))) * self.rows[:, b, :, None].to(X.dtype)
+        # the candidates' columns side by side, [S,R,N k]: one product per sample time, not per candidate
+        (S, R, k), lead = X.shape[-3:], X.shape[:-3]
+        Y = X.reshape(-1, S, R, k).permute(1, 2, 0, 3).reshape(S, R, -1)
+        Y = (Y - J @ (A @ (J.transpose(-1, -2) @ Y))) * self.rows[:, b, :, None].to(X.dtype)
+        return Y.reshape(S, R, -1, k).permute(2, 0, 1, 3).reshape(*lead, S, R, k)
 
 
 def sequence_of(recordings: Sequence[Recording], links, dtype=torch.float64) -> TargetSequence:
@@ -239,20 +259,19 @@ def _task_jacobian(model: KinematicModel, trajectory: Trajectory, links, sample:
 def autocorrelation_time(x: torch.Tensor, axis: int = 0) -> float:
     """Integrated autocorrelation time of a series (Sokal's window: sum lags until 5 tau), >= 1.
     x: [T,...] (the other dims averaged)."""
-    x = x.movedim(axis, 0).reshape(x.shape[axis], -1).double()
-    x = x - x.mean(0)
-    T = x.shape[0]
+    T = x.shape[axis]
     if T < 4:
         return 1.0
-    f = torch.fft.rfft(x, n=2 * T, dim=0)
-    acf = torch.fft.irfft(f * f.conj(), dim=0)[:T].sum(-1)
-    if float(acf[0]) <= 0:
+    # in numpy: the scores call this on every candidate's short series, where torch's per-call cost dominates
+    x = x.movedim(axis, 0).reshape(T, -1).double().numpy()
+    x = x - x.mean(0)
+    f = np.fft.rfft(x, n=2 * T, axis=0)
+    acf = np.fft.irfft((f.real ** 2 + f.imag ** 2).sum(-1), n=2 * T)[:T]  # summed over the other dims
+    if acf[0] <= 0:
         return 1.0
-    rho = acf / acf[0]
-    taus = 1.0 + 2.0 * torch.cumsum(rho[1:], 0)  # tau summed up to lag k = 1, 2, ...
-    lags = torch.arange(1, T, dtype=taus.dtype)
-    stop = torch.nonzero(lags >= 5.0 * taus)
-    tau = float(taus[stop[0, 0]] if len(stop) else taus[-1])
+    taus = 1.0 + 2.0 * np.cumsum(acf[1:] / acf[0])  # tau summed up to lag k = 1, 2, ...
+    stop = np.flatnonzero(np.arange(1, T) >= 5.0 * taus)
+    tau = float(taus[stop[0]] if len(stop) else taus[-1])
     return float(min(max(tau, 1.0), T / 4.0))
 
 

@@ -98,31 +98,33 @@ NO_GYRO = "not identifiable: the angular velocity is the orientations' derivativ
 
 
 def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, derived: torch.Tensor | None = None,
-        max_delay: float = 0.1, cutoff: float = 5.0) -> list[Effect]:
+        max_delay: float = 0.1, cutoff: float = 5.0, target: str | None = None) -> list[Effect]:
     """Bias, scale and stream-delay candidates for every link of subject b, and one delay common to
     all its gyros (target "all"). derived [L]: links whose angular velocity is computed from the
     orientations (default: analysis.derived), where these effects cannot be told (they come back
-    without a fit, saying so)."""
+    without a fit, saying so). target: only that link's candidates (or, "all", the common delay's)."""
     out, rates = [], []
     time = analysis.time
     derived = analysis.derived[b] if derived is None else derived
     dt = float(torch.diff(time).median())
     cutoff = min(cutoff, 0.25 / dt)
     eye = torch.eye(3, dtype=time.dtype)
+    ok = analysis.valid[:, b]  # [T,L]
+    low = lambda x: lowpass(x, time, cutoff)  # noqa: E731  (column by column: all links at once)
+    e_low = low(analysis.e[:, b])
+    R_low = low(torch.where(ok[..., None, None], analysis.R_m[:, b], eye))
+    w_lows = low(simpson(torch.where(ok[..., None], analysis.w_m[:, b], 0.0)))
     for i, name in enumerate(analysis.links):
+        if target not in (None, "all", name):
+            continue
         if bool(derived[i]):
             out += [GyroBias("gyro_bias", name, notes=NO_GYRO), GyroScale("gyro_scale", name, notes=NO_GYRO),
                     StreamDelay("stream_delay", name, notes=NO_GYRO)]
             continue
-        ok = analysis.valid[:, b, i]
-        tr, te = ok & train, ok & test
+        tr, te = ok[:, i] & train, ok[:, i] & test
         if int(tr.sum()) < 8 or int(te.sum()) < 8:
             continue
-        low = lambda x: lowpass(x, time, cutoff)  # noqa: E731
-        e = low(analysis.e[:, b, i])
-        R = low(torch.where(ok[:, None, None], analysis.R_m[:, b, i], eye))
-        w_s = simpson(torch.where(ok[:, None], analysis.w_m[:, b, i], 0.0))
-        w_low = low(w_s)
+        e, R, w_low = e_low[:, i], R_low[:, i], w_lows[:, i]
         # bias: e = R_m b, sensor frame
         N = (R[tr].transpose(-1, -2) @ R[tr]).sum(0)
         bias = torch.linalg.solve(N, (R[tr].transpose(-1, -2) @ e[tr, :, None]).sum(0)).squeeze(-1)
@@ -139,7 +141,7 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
         # delay: the lag that best lines the gyro up with the orientations' rate
         out.append(_delay(name, w_low, e, tr, te, time, max_delay))
         rates.append((name, w_low, e, tr, te))
-    if len(rates) > 1:
+    if len(rates) > 1 and target in (None, "all"):
         names, w_low, e, tr, te = zip(*rates)
         common = _delay("all", torch.cat(w_low, -1), torch.cat(e, -1), torch.stack(tr).all(0), torch.stack(te).all(0),
                         time, max_delay)
@@ -165,7 +167,8 @@ def _lag(x: torch.Tensor, y: torch.Tensor, mask: torch.Tensor, max_lag: int, dt:
     inner = mask.clone()
     inner[:max_lag] = False
     inner[T - max_lag:] = False
-    cost = torch.stack([(x.roll(-k, 0)[inner] - y[inner]).square().sum() for k in lags])
+    t = torch.nonzero(inner)[:, 0]
+    cost = (x[(t + torch.arange(-max_lag, max_lag + 1)[:, None]) % T] - y[t]).square().sum((1, 2))  # every lag at once
     j = int(cost.argmin())
     if 0 < j < len(cost) - 1:
         c0, c1, c2 = (float(c) for c in cost[j - 1:j + 2])

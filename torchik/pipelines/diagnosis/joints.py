@@ -17,6 +17,7 @@ each time. With G = a on those links' rows (analysis.py), theta(t) = G^T M r / G
 
 from __future__ import annotations
 
+import functools
 import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -47,8 +48,13 @@ class JointGroup:
     axes: tuple[tuple[float, float, float], ...] = ()  # the movable joints' axes in the parent's frame, at zero
 
 
-def joint_groups(urdf: str, links) -> list[JointGroup]:
+def joint_groups(urdf: str, links) -> tuple[JointGroup, ...]:
     """The JointGroup of every tracked link but the root."""
+    return _joint_groups(urdf, tuple(links))
+
+
+@functools.lru_cache(maxsize=64)  # every round asks again for the same URDF
+def _joint_groups(urdf: str, links: tuple[str, ...]) -> tuple[JointGroup, ...]:
     root = ET.fromstring(urdf)
     parent_joint = {j.find("child").get("link"): j for j in root.iter("joint")}
     tracked = set(links)
@@ -87,7 +93,7 @@ def joint_groups(urdf: str, links) -> list[JointGroup]:
                 a = np.array([float(x) for x in (axis.get("xyz") if axis is not None else "1 0 0").split()])
                 axes.append(tuple(R @ (a / np.linalg.norm(a))))
         groups.append(JointGroup(c, p, js[0].get("name"), movable, subtree, tuple(axes)))
-    return groups
+    return tuple(groups)
 
 
 def _stem(group: JointGroup) -> str:
@@ -167,9 +173,11 @@ class JointLimit(Effect):
                 f"to {math.degrees(self.params['needed']):.1f} deg")
 
 
-def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, urdf: str) -> list[Effect]:
-    """Missing-DoF candidates for every joint group, and limit candidates for joints at a limit."""
-    return _missing(analysis, b, train, test, urdf) + _limits(analysis, b, train, test)
+def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, urdf: str,
+        target: str | None = None) -> list[Effect]:
+    """Missing-DoF candidates for every joint group, and limit candidates for joints at a limit
+    (target: only those at that joint)."""
+    return _missing(analysis, b, train, test, urdf, target) + _limits(analysis, b, train, test, target)
 
 
 def _rows(analysis: Analysis, names) -> torch.Tensor:
@@ -180,19 +188,22 @@ def _rows(analysis: Analysis, names) -> torch.Tensor:
     return E
 
 
-def _missing(analysis, b, train, test, urdf) -> list[Effect]:
+def _missing(analysis, b, train, test, urdf, target=None) -> list[Effect]:
     out = []
     k = analysis.sample
     tr, te = train[k], test[k]
     if int(tr.sum()) < 8 or int(te.sum()) < 8:
         return out
-    r = analysis.stacked_residual()[:, b]
-    Mr = analysis.project(b, r[..., None]).squeeze(-1)
-    for group in joint_groups(urdf, analysis.links):
-        if group.parent not in analysis.links:
-            continue
-        E = _rows(analysis, group.subtree).expand(len(k), -1, -1)
-        ME = analysis.project(b, E)
+    groups = [g for g in joint_groups(urdf, analysis.links) if g.parent in analysis.links and target in (None, _stem(g))]
+    if not groups:
+        return out
+    r = analysis.stacked_residual(b)
+    M = analysis.projector(b)  # [S,R,R]
+    Mr = (M @ r[..., None]).squeeze(-1)
+    Es = [_rows(analysis, group.subtree) for group in groups]
+    MEs = (M @ torch.cat(Es, dim=-1)).split(3, dim=-1)  # M E [S,R,3] of every group, in one product
+    for group, E, ME in zip(groups, Es, MEs):
+        E = E.expand(len(k), -1, -1)
         R_p = analysis.R_hat[k, b, analysis.links.index(group.parent)]
         Rt = R_p.transpose(-1, -2)
         s = (Rt @ (E.transpose(-1, -2) @ Mr[..., None])).squeeze(-1)  # [S,3]
@@ -235,16 +246,18 @@ def _missing(analysis, b, train, test, urdf) -> list[Effect]:
     return out
 
 
-def _limits(analysis, b, train, test) -> list[Effect]:
+def _limits(analysis, b, train, test, target=None) -> list[Effect]:
     out = []
     model, k = analysis.model, analysis.sample
     active = analysis.active[k, b]  # [S,n]
     if not bool(active.any()):
         return out
-    r = analysis.stacked_residual()[:, b]
+    r = analysis.stacked_residual(b)
     mask = analysis.model.select(analysis.links).ancestor_mask  # [L,n]
     J = analysis.J[:, b]
     for j in torch.nonzero(active.any(0)).flatten().tolist():
+        if target not in (None, model.joint_names[j]):
+            continue
         at = active[:, j]
         s_j = analysis.s[k, b, j]
         upper = bool((s_j[at] > 0.5 * (model.lower[j] + model.upper[j])).double().mean() > 0.5)

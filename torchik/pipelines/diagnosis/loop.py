@@ -42,21 +42,23 @@ WORSE = 1e-3  # an effect that raises its error by more than this share once re-
 
 
 def candidates(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, urdf: str,
-               kinds: Sequence[str] = KINDS, derived: torch.Tensor | None = None) -> list[Effect]:
+               kinds: Sequence[str] = KINDS, derived: torch.Tensor | None = None, target: str | None = None) -> list[Effect]:
     """Every candidate effect of subject b, fitted on `train` and scored on `test`, best first; last,
     those the data cannot identify (no fit; their notes say why). derived [L]: links without a gyro of
-    their own (default: analysis.derived)."""
+    their own (default: analysis.derived); target: only the candidates on that link or joint (a refit;
+    each is fitted on its own data, so they are the same as among all)."""
     kinds = set(kinds)
     out = []
     if kinds & {"gyro_bias", "gyro_scale", "stream_delay"}:
-        out += gyro.fit(analysis, b, train, test, derived)
+        out += gyro.fit(analysis, b, train, test, derived, target=target)
     if kinds & {"misalignment", "sensor_delay", "heading_drift"}:
-        out += placement.fit(analysis, b, train, test, derived)
+        out += placement.fit(analysis, b, train, test, derived, target=target)
     if kinds & {"missing_dof", "joint_limit"}:
-        out += joints.fit(analysis, b, train, test, urdf)
+        out += joints.fit(analysis, b, train, test, urdf, target=target)
     if "position_offset" in kinds:
         out += position.fit(analysis, b, train, test)
-    out = [c for c in out if c.kind in kinds and (c.fit is None or math.isfinite(c.score))]
+    out = [c for c in out if c.kind in kinds and (target is None or c.target == target)
+           and (c.fit is None or math.isfinite(c.score))]
     return sorted(out, key=lambda c: -c.score)
 
 
@@ -165,18 +167,19 @@ class _Subject:
     unobservable: list = field(default_factory=list)
     rejected: list = field(default_factory=list)
 
-    def candidates(self, kinds, train=None, test=None) -> list[Effect]:
-        """Candidates on the current analysis (train and test: halves() unless given)."""
+    def candidates(self, kinds, train=None, test=None, target=None) -> list[Effect]:
+        """Candidates on the current analysis (train and test: halves() unless given; target: only
+        those on that link or joint)."""
         analysis, b = self.analysis
         if train is None:
             train, test = halves(analysis.time)
-        return candidates(analysis, b, train, test, self.urdf, kinds, self.derived)
+        return candidates(analysis, b, train, test, self.urdf, kinds, self.derived, target)
 
     def refit(self, effect: Effect) -> Effect | None:
         """The effect's kind and target fitted again on all the current data (after the transient)."""
         train, test = halves(self.analysis[0].time, guard=0.0)
-        found = [c for c in self.candidates((effect.kind,), train | test, train | test)
-                 if c.target == effect.target and c.fit is not None]
+        found = [c for c in self.candidates((effect.kind,), train | test, train | test, effect.target)
+                 if c.fit is not None]
         return found[0] if found else None
 
     def add(self, effect: Effect) -> None:
@@ -263,12 +266,14 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
         changed = [s for s, *_ in added]
         _analyse(changed, links, gain, progress, max_samples)
         for _ in range(refine):
+            moved = []  # those left as they were keep their analysis: re-tracking would give it again
             for s, effect, *_ in added:
                 update = None if isinstance(effect, joints.MissingDof) else s.refit(effect)
                 if update is not None:
                     s.add(update)
                     effect.refine(update)
-            _analyse(changed, links, gain, progress, max_samples)
+                    moved.append(s)
+            _analyse(moved, links, gain, progress, max_samples)
         for s, effect, before, saved in added:
             after = errors(*s.analysis)
             old, new = before.overall[effect.error], after.overall[effect.error]

@@ -35,11 +35,11 @@ LEVERAGE = 1e-3  # a direction that leaves less of itself in the residual (G^T M
 def project_blocks(analysis: Analysis, b: int, links: list[int], blocks: torch.Tensor) -> torch.Tensor:
     """M G for N candidates whose G is `blocks` [N,S,3,k] on the orientation rows of links[n] and
     zero elsewhere -> [N,S,R,k]."""
-    N, S, _, k = blocks.shape
-    G = blocks.new_zeros(N, S, analysis.J.shape[-2], k)
-    for n, i in enumerate(links):
-        G[n, :, analysis.orientation_rows(i)] = blocks[n]
-    return analysis.project(b, G)
+    M = analysis.projector(b)  # [S,R,R]
+    columns = M[:, :, 3:].unflatten(-1, (-1, 3)).permute(0, 2, 1, 3)  # [S,L,R,3]: M's columns of each link's rows
+    if list(links) != list(range(columns.shape[1])):
+        columns = columns[:, links]
+    return (columns @ blocks.transpose(0, 1)).transpose(0, 1)  # [S,N,R,3] @ [S,N,3,k] -> [N,S,R,k]
 
 
 @dataclass
@@ -61,35 +61,37 @@ def fit_linear(analysis: Analysis, b: int, links: list[int], blocks: torch.Tenso
     the residual (the joints do not follow it) and carries IDENTIFIABLE of the largest eigenvalue."""
     MG = project_blocks(analysis, b, links, blocks)  # [N,S,R,k]
     tr, te = train[:, analysis.sample], test[:, analysis.sample]  # [N,S]
-    r = analysis.stacked_residual()[:, b]  # [S,R]
+    r = analysis.stacked_residual(b)  # [S,R]
     w = tr.to(MG.dtype)[..., None, None]
     N = (w * (MG.transpose(-1, -2) @ MG)).sum(1)  # [N,k,k]
     N0 = (w * (blocks.transpose(-1, -2) @ blocks)).sum(1)  # the same before the joints absorb their part
     g = (w[..., 0] * (MG.transpose(-1, -2) @ r[..., None])[..., 0]).sum(1)  # [N,k]
     sigma2_o = max(float(torch.diff(r[:, 3:], dim=0).square().mean()) / 2.0, 1e-12)  # white noise: var(dr) = 2 sigma^2
+    if extra is not None:
+        N_e, g_e = torch.stack([x[0] for x in extra]), torch.stack([x[1] for x in extra])
+        sigma2_e = torch.tensor([x[2] for x in extra], dtype=N.dtype)
+        N, N0, g = (N / sigma2_o + N_e / sigma2_e[:, None, None], N0 / sigma2_o + N_e / sigma2_e[:, None, None],
+                    g / sigma2_o + g_e / sigma2_e[:, None])
+    # every candidate at once; the directions not kept have a zero weight in the inverse
+    eigval, eigvec = torch.linalg.eigh(N)  # [N,k], [N,k,k]
+    leverage = eigval / torch.einsum("nik,nij,njk->nk", eigvec, N0, eigvec).clamp(min=1e-300)
+    keep = (eigval > IDENTIFIABLE * eigval.amax(-1, keepdim=True).clamp(min=1e-300)) & (leverage > LEVERAGE)
+    inverse = eigvec @ (torch.where(keep, 1.0 / eigval, 0.0)[..., None] * eigvec.transpose(-1, -2))  # [N,k,k]
+    theta = (inverse @ g[..., None])[..., 0]  # [N,k]
+    pred = (MG @ theta[:, None, :, None])[..., 0]  # [N,S,R]
+    energy = pred.square().sum(1)  # [N,R]
+    support = energy > 1e-6 * energy.amax(-1, keepdim=True).clamp(min=1e-300)
+    support[:, :3] = False  # the base position (metres) is not part of an orientation effect's support
     out = []
     for n in range(MG.shape[0]):
-        Nn, N0n, gn = N[n], N0[n], g[n]
-        if extra is not None:
-            N_e, g_e, sigma2_e = extra[n][:3]
-            Nn, N0n, gn = Nn / sigma2_o + N_e / sigma2_e, N0n / sigma2_o + N_e / sigma2_e, gn / sigma2_o + g_e / sigma2_e
-        eigval, eigvec = torch.linalg.eigh(Nn)
-        leverage = eigval / torch.einsum("ik,ij,jk->k", eigvec, N0n, eigvec).clamp(min=1e-300)
-        keep = (eigval > IDENTIFIABLE * eigval.max().clamp(min=1e-300)) & (leverage > LEVERAGE)
-        V = eigvec[:, keep]
-        inverse = V @ torch.diag(1.0 / eigval[keep]) @ V.T
-        theta = inverse @ gn
-        pred = MG[n] @ theta  # [S,R]
-        energy = pred.square().sum(0)
-        support = energy > 1e-6 * energy.max().clamp(min=1e-300)
-        support[:3] = False  # the base position (metres) is not part of an orientation effect's support
-        y = r[te[n]][:, support]
-        fit = score(y, y - pred[te[n]][:, support], 0 if extra is not None else int(keep.sum()))
+        k = int(keep[n].sum())
+        y = r[te[n]][:, support[n]]
+        fit = score(y, y - pred[n, te[n]][:, support[n]], 0 if extra is not None else k)
         if extra is not None:
             y_e, predict = extra[n][3], extra[n][4]
-            fit = combine((fit, 0), (score(y_e, y_e - predict(theta), 0), int(keep.sum())))
+            fit = combine((fit, 0), (score(y_e, y_e - predict(theta[n]), 0), k))
         scale = fit.sigma2 * fit.tau if extra is None else fit.tau  # extra: N already weighted by 1/sigma^2
-        out.append(LinearFit(theta, inverse * scale, V, fit))
+        out.append(LinearFit(theta[n], inverse[n] * scale, eigvec[n][:, keep[n]], fit))
     return out
 
 
@@ -177,17 +179,18 @@ class HeadingDrift(Effect):
         return f"heading of the {self.target} sensor drifting by {np.degrees(self.params['rate']):+.3f} deg/s"
 
 
-def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, derived: torch.Tensor | None = None) -> list[Effect]:
+def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, derived: torch.Tensor | None = None,
+        target: str | None = None) -> list[Effect]:
     """Misalignment, sensor-delay and heading-drift candidates for every link of subject b; those
     the data cannot identify without a fit (their notes say why). derived [L]: links whose angular
     velocity is computed from the orientations (default: analysis.derived), whose drift is fitted
-    on the orientations alone."""
+    on the orientations alone. target: only that link's candidates."""
     k, time = analysis.sample, analysis.time
     derived = analysis.derived[b] if derived is None else derived
     t0 = float(time[0])
     ok = analysis.valid[:, b]  # [T,L]
-    usable = [i for i in range(len(analysis.links))
-              if int((ok[:, i] & train)[k].sum()) >= 8 and int((ok[:, i] & test)[k].sum()) >= 8]
+    usable = [i for i, name in enumerate(analysis.links) if target in (None, name)
+              and int((ok[:, i] & train)[k].sum()) >= 8 and int((ok[:, i] & test)[k].sum()) >= 8]
     if not usable:
         return []
     tr, te = (ok[:, usable] & train[:, None]).T, (ok[:, usable] & test[:, None]).T  # [N,T]
