@@ -33,7 +33,9 @@ from ...method.kinematics import KinematicModel
 from ..evaluation import link_motion
 from ...method.tracker import DynamicalIK
 from ...method.state import State, TargetSequence, Trajectory
+from ...method.settings import TrackerSettings
 
+DEFAULT_GAIN = TrackerSettings.orientation_gain  # the tracker's K (1/s), from its one source
 NO_LIMIT = 19.9  # rad: a range this wide is no limit (the URDFs write +-10 rad for none)
 LIMIT_TOLERANCE = 0.01  # rad: a joint this close to a finite limit is at it
 
@@ -168,7 +170,7 @@ def sequence_of(recordings: Sequence[Recording], links, dtype=torch.float64) -> 
     return TargetSequence(t(recordings[0].time), p, v, R, w)
 
 
-def track(model: KinematicModel, recordings: Sequence[Recording], links, gain: float = 20.0,
+def track(model: KinematicModel, recordings: Sequence[Recording], links, gain: float = DEFAULT_GAIN,
           progress: bool = False, settle: float = 0.5) -> Trajectory:
     """Track B recordings as one batch (the batched backend when B > 1), from a state at rest in the
     first frame's posture: the tracker run for `settle` seconds on the first targets held still.
@@ -188,7 +190,7 @@ def track(model: KinematicModel, recordings: Sequence[Recording], links, gain: f
 
 
 def analyse(model: KinematicModel, recordings: Sequence[Recording], links, trajectory: Trajectory | None = None,
-            gain: float = 20.0, max_samples: int = 300, progress: bool = False) -> Analysis:
+            gain: float = DEFAULT_GAIN, max_samples: int = 300, progress: bool = False) -> Analysis:
     """Track (unless `trajectory` is given) and compute the residuals of module docstring."""
     links = tuple(links)
     if trajectory is None:

@@ -30,7 +30,7 @@ from ...io.recording import Recording
 from ...method.kinematics import KinematicModel
 from ...method.metrics import orientation_error
 from . import gyro, joints, placement, position
-from .analysis import Analysis, analyse, joint_summary, link_summary
+from .analysis import DEFAULT_GAIN, Analysis, analyse, joint_summary, link_summary
 from .calibration import FORMAT
 from .effect import SIGNIFICANT, Effect, halves
 
@@ -232,7 +232,7 @@ def _choose(s: _Subject, kinds, threshold: float, first: bool) -> Effect | None:
     return final
 
 
-def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], links, gain: float = 20.0,
+def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], links, gain: float = DEFAULT_GAIN,
              max_effects: int = 6, threshold: float = SIGNIFICANT, refine: int = 2, kinds: Sequence[str] = KINDS,
              progress: bool = False, log: Callable[[str], None] | None = None,
              max_samples: int = 300) -> list[Diagnosis]:
