@@ -54,7 +54,7 @@ def main() -> None:
 
     model, links = load_model(args.model), TRACKED_LINKS[args.model]
     sequence = walking_targets(model, links, args.duration, args.rate)
-    tracker = DynamicalIK(model, links, position_gain=20.0, orientation_gain=20.0, dt=1.0 / args.rate)
+    tracker = DynamicalIK(model, links, dt=1.0 / args.rate)
 
     start = time.perf_counter()
     trajectory = tracker.run(sequence, progress=True, interruptible=True)

@@ -35,7 +35,7 @@ def main() -> None:
     rate = 100
     motion = periodic_motion(model, (args.steps + 100) / rate, rate)
     sequence = targets_from_motion(model, motion, links)
-    tracker = DynamicalIK(model, links, position_gain=20.0, orientation_gain=20.0, dt=1.0 / rate, scheme=args.scheme)
+    tracker = DynamicalIK(model, links, dt=1.0 / rate, scheme=args.scheme)
     trajectory = tracker.run(sequence, initial=motion.state(0), progress=False)
     d = {k: v[100:] for k, v in trajectory.diagnostics.items()}  # the first 100 steps warm up
     rest = d["step_time"] - d["kinematics_time"] - d["qp_time"]
