@@ -8,7 +8,7 @@ import torch
 
 from torchik import InputError, so3
 from torchik.method.models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_model
-from torchik.pipelines.rrd import _quaternion_xyzw, log_trajectory, visuals
+from torchik.pipelines.rrd import quaternion_xyzw, log_trajectory, visuals
 from torchik.io.targets import recording_targets
 from torchik.synthetic.scenarios import scenario
 from torchik.synthetic.motion import periodic_motion, targets_from_motion
@@ -143,7 +143,7 @@ def test_quaternions_give_back_the_rotation_even_near_half_turns():
     axis = torch.nn.functional.normalize(torch.randn(50, 3, generator=g, dtype=torch.float64), dim=-1)
     half_turns = so3.exp((torch.pi - 1e-9) * axis)  # where the trace-based formula loses all precision
     R = torch.cat((R, half_turns, torch.eye(3, dtype=torch.float64)[None]))
-    q = _quaternion_xyzw(R)
+    q = quaternion_xyzw(R)
     assert torch.allclose(q.norm(dim=-1), torch.ones(len(R), dtype=torch.float64))
     assert torch.allclose(so3.quaternion_to_matrix(q[:, [3, 0, 1, 2]]), R, atol=1e-12)
 

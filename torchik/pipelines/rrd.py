@@ -42,71 +42,18 @@ from ..errors import optional
 rr = optional("rerun", "viz", "writing rerun recordings")
 rrb = optional("rerun.blueprint", "viz", "writing rerun recordings")
 
-from ..method import so3
 from ..errors import InputError
-from ..method.kinematics import KinematicModel, read_urdf
 from ..io.files import replacing
-from .evaluation import time_chunks
+from ..method.kinematics import KinematicModel
 from ..method.state import TargetSequence, Trajectory
+from .evaluation import time_chunks
+from .visuals import Visual, log_visuals, quaternion_xyzw, visuals  # noqa: F401  (visuals: part of this module's API)
 
 GROUPS = {"mnte": "errors", "rmse": "errors", "active_constraints": "solver", "solved": "solver",
           "dropped": "solver", "projected": "solver"}  # per-subject diagnostics [T,B]; others: "diagnostics"
 BATCH_SERIES = ("step_time", "kinematics_time", "qp_time")  # [T] seconds for the whole batch
 NO_LIMIT = 19.9  # rad: URDFs write +-10 rad for "no limit" (as KinematicModel.summary counts)
 PALETTE = ((80, 140, 220), (230, 120, 50), (90, 180, 90), (200, 80, 160), (150, 110, 60), (60, 170, 180))
-
-
-@dataclass(frozen=True)
-class Visual:
-    """One URDF <visual> of a link: kind 'box' (size: full extents [3]), 'cylinder' (size: radius,
-    length; axis z), 'sphere' (size: radius,) or 'mesh' (mesh: the file, size: scale [3]); its
-    origin in the link frame (translation [3], quaternion [4] x,y,z,w); rgba or None."""
-
-    kind: str
-    size: tuple[float, ...]
-    translation: tuple[float, float, float]
-    quaternion: tuple[float, float, float, float]
-    mesh: Path | None = None
-    rgba: tuple[float, float, float, float] | None = None
-
-
-def visuals(urdf: str | Path) -> dict[str, list[Visual]]:
-    """The visual shapes of a URDF (a file or its XML text), by link name. Mesh files given as
-    package://PACKAGE/... are looked for in a PACKAGE folder above the URDF's; a mesh that cannot
-    be found is left out with a warning naming it (the skeleton and frames still show the link)."""
-    robot, where = read_urdf(urdf)
-    folder = Path(where).parent if Path(where).is_file() else Path.cwd()
-    shapes: dict[str, list[Visual]] = {}
-    for link in robot.links:  # build time: a Python walk over the URDF's links is fine
-        for visual in link.visuals:
-            geometry, origin = visual.geometry, visual.origin
-            xyz = tuple(float(v) for v in (origin.xyz if origin is not None and origin.xyz is not None else (0, 0, 0)))
-            rpy = torch.tensor(origin.rpy if origin is not None and origin.rpy is not None else (0.0, 0.0, 0.0),
-                               dtype=torch.float64)
-            quaternion = tuple(_quaternion_xyzw(so3.rpy_to_matrix(rpy)).tolist())
-            material = getattr(visual, "material", None)
-            color = getattr(material, "color", None)
-            rgba = tuple(color.rgba) if color is not None and color.rgba is not None else None
-            kind = type(geometry).__name__.lower()
-            if kind == "box":
-                size = tuple(float(v) for v in geometry.size)
-            elif kind == "cylinder":
-                size = (float(geometry.radius), float(geometry.length))
-            elif kind == "sphere":
-                size = (float(geometry.radius),)
-            elif kind == "mesh":
-                mesh = _find_mesh(geometry.filename, folder)
-                if mesh is None:
-                    warnings.warn(f"{where}: link {link.name!r}: mesh {geometry.filename} not found; "
-                                  f"the recording shows the link without it", stacklevel=2)
-                    continue
-                scale = tuple(float(v) for v in geometry.scale) if geometry.scale is not None else (1.0, 1.0, 1.0)
-                shapes.setdefault(link.name, []).append(Visual("mesh", scale, xyz, quaternion, mesh, rgba))
-                continue
-            else:
-                raise InputError(f"{where}: link {link.name!r} has a visual of unknown type {kind!r}")
-            shapes.setdefault(link.name, []).append(Visual(kind, size, xyz, quaternion, None, rgba))
-    return shapes
 
 
 def log_trajectory(path: str | Path, model: KinematicModel, links: Sequence[str], trajectory: Trajectory,
@@ -148,19 +95,8 @@ def log_trajectory(path: str | Path, model: KinematicModel, links: Sequence[str]
         from tqdm import tqdm
 
         bar = tqdm(total=len(subjects) + 1, desc=f"writing {path.name}", unit="part", leave=False, delay=1.0)
-
-    # every link that is tracked or drawn, tracked ones first
-    drawn = links + tuple(name for name in model.link_names if name in shapes and name not in links)
-    rotation, position = _link_poses(model, drawn, trajectory, chunk)  # [T,B,D,3,3], [T,B,D,3] float32
-    quaternion = _quaternion_xyzw(rotation).numpy()
-    child, parent = _bones(model, links)
-    bones = torch.stack((position[:, :, child], position[:, :, parent]), dim=-2).numpy()  # [T,B,E,2,3]
-    position = position.numpy()
-    host = lambda t: t.detach().to("cpu", torch.float64).numpy()  # noqa: E731
-    joint_positions, residual = host(trajectory.joint_positions), host(trajectory.diagnostics["residual_norm"])
-    lower, upper = host(model.lower), host(model.upper)
-    limited = np.isfinite(lower) & np.isfinite(upper) & (upper - lower < NO_LIMIT)
-    time = rr.TimeColumn("time", duration=host(trajectory.time))
+    columns = _Columns.of(model, links, position_links, shapes, trajectory, per_subject, chunk)
+    time = columns.time
     if bar is not None:
         bar.update()
 
@@ -171,33 +107,7 @@ def log_trajectory(path: str | Path, model: KinematicModel, links: Sequence[str]
             rec.send_recording_name(path.stem)
             rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
             for i in subjects:
-                root = f"/subject/{i}"
-                color = PALETTE[i % len(PALETTE)]
-                for k, link in enumerate(drawn):
-                    name = f"{root}/estimate/{rr.escape_entity_path_part(link)}"
-                    if k < len(links):
-                        rec.log(name, rr.TransformAxes3D(axis_length), static=True)
-                    _log_visuals(rec, f"{name}/visual", shapes.get(link, ()), color)
-                    rec.send_columns(name, [time], rr.Transform3D.columns(
-                        translation=position[:, i, k], quaternion=quaternion[:, i, k]))
-                rec.log(f"{root}/skeleton", rr.LineStrips3D.from_fields(radii=[0.01], colors=[color]), static=True)
-                rec.send_columns(f"{root}/skeleton", [time], rr.LineStrips3D.columns(
-                    strips=bones[:, i].reshape(-1, 2, 3)).partition(np.full(T, len(child))))
-                if targets is not None:
-                    _log_targets(rec, f"{root}/target", trajectory.time, targets, i, links, position_links,
-                                 position[:, i, :len(links)], 1.5 * axis_length)
-                for name, values in per_subject.items():
-                    _send_scalars(rec, f"{root}/{GROUPS.get(name, 'diagnostics')}/{name}", time, values[:, i])
-                for j, link in enumerate(position_links + links):
-                    kind = "position" if j < len(position_links) else "orientation"
-                    _send_scalars(rec, f"{root}/residual/{kind}/{rr.escape_entity_path_part(link)}", time,
-                                  residual[:, i, j])
-                for j, joint in enumerate(model.joint_names):
-                    values, names = joint_positions[:, i, j], None
-                    if limited[j]:
-                        values = np.stack((values, np.full(T, lower[j]), np.full(T, upper[j])), axis=1)
-                        names = ["angle", "lower limit", "upper limit"]
-                    _send_scalars(rec, f"{root}/joints/{rr.escape_entity_path_part(joint)}", time, values, names)
+                _log_subject(rec, columns, i, targets, trajectory.time, axis_length)
                 if bar is not None:
                     bar.update()
             for name, values in per_batch.items():
@@ -215,6 +125,76 @@ def log_trajectory(path: str | Path, model: KinematicModel, links: Sequence[str]
         if bar is not None:
             bar.close()
     return path
+
+
+@dataclass
+class _Columns:
+    """What log_trajectory sends, computed once for all subjects: the drawn links (tracked first)
+    and their poses [T,B,D,3(,4)] (float32), the bones [T,B,E,2,3], the joints [T,B,n] with their
+    effective limits, the residual norms [T,B,targets] and the per-subject diagnostics."""
+
+    model: KinematicModel
+    links: tuple[str, ...]
+    position_links: tuple[str, ...]
+    shapes: dict[str, list[Visual]]
+    drawn: tuple[str, ...]
+    time: rr.TimeColumn
+    position: np.ndarray
+    quaternion: np.ndarray
+    bones: np.ndarray
+    joint_positions: np.ndarray
+    residual: np.ndarray
+    limited: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    per_subject: dict[str, np.ndarray]
+
+    @staticmethod
+    def of(model: KinematicModel, links: tuple[str, ...], position_links: tuple[str, ...],
+           shapes: dict[str, list[Visual]], trajectory: Trajectory, per_subject: dict[str, np.ndarray],
+           chunk: int) -> "_Columns":
+        # every link that is tracked or drawn, tracked ones first
+        drawn = links + tuple(name for name in model.link_names if name in shapes and name not in links)
+        rotation, position = _link_poses(model, drawn, trajectory, chunk)  # [T,B,D,3,3], [T,B,D,3] float32
+        child, parent = _bones(model, links)
+        bones = torch.stack((position[:, :, child], position[:, :, parent]), dim=-2).numpy()  # [T,B,E,2,3]
+        host = lambda t: t.detach().to("cpu", torch.float64).numpy()  # noqa: E731
+        lower, upper = host(model.lower), host(model.upper)
+        return _Columns(model, links, position_links, shapes, drawn, rr.TimeColumn("time", duration=host(trajectory.time)),
+                        position.numpy(), quaternion_xyzw(rotation).numpy(), bones, host(trajectory.joint_positions),
+                        host(trajectory.diagnostics["residual_norm"]), np.isfinite(lower) & np.isfinite(upper) &
+                        (upper - lower < NO_LIMIT), lower, upper, per_subject)
+
+
+def _log_subject(rec: rr.RecordingStream, columns: _Columns, i: int, targets: TargetSequence | None,
+                 target_time: torch.Tensor, axis_length: float) -> None:
+    """Subject i's entity tree: link poses and visuals, skeleton, targets, diagnostics, residuals, joints."""
+    c, root, color = columns, f"/subject/{i}", PALETTE[i % len(PALETTE)]
+    T, time = len(c.joint_positions), c.time
+    for k, link in enumerate(c.drawn):
+        name = f"{root}/estimate/{rr.escape_entity_path_part(link)}"
+        if k < len(c.links):
+            rec.log(name, rr.TransformAxes3D(axis_length), static=True)
+        log_visuals(rec, f"{name}/visual", c.shapes.get(link, ()), color)
+        rec.send_columns(name, [time], rr.Transform3D.columns(
+            translation=c.position[:, i, k], quaternion=c.quaternion[:, i, k]))
+    rec.log(f"{root}/skeleton", rr.LineStrips3D.from_fields(radii=[0.01], colors=[color]), static=True)
+    rec.send_columns(f"{root}/skeleton", [time], rr.LineStrips3D.columns(
+        strips=c.bones[:, i].reshape(-1, 2, 3)).partition(np.full(T, c.bones.shape[2])))
+    if targets is not None:
+        _log_targets(rec, f"{root}/target", target_time, targets, i, c.links, c.position_links,
+                     c.position[:, i, :len(c.links)], 1.5 * axis_length)
+    for name, values in c.per_subject.items():
+        _send_scalars(rec, f"{root}/{GROUPS.get(name, 'diagnostics')}/{name}", time, values[:, i])
+    for j, link in enumerate(c.position_links + c.links):
+        kind = "position" if j < len(c.position_links) else "orientation"
+        _send_scalars(rec, f"{root}/residual/{kind}/{rr.escape_entity_path_part(link)}", time, c.residual[:, i, j])
+    for j, joint in enumerate(c.model.joint_names):
+        values, names = c.joint_positions[:, i, j], None
+        if c.limited[j]:
+            values = np.stack((values, np.full(T, c.lower[j]), np.full(T, c.upper[j])), axis=1)
+            names = ["angle", "lower limit", "upper limit"]
+        _send_scalars(rec, f"{root}/joints/{rr.escape_entity_path_part(joint)}", time, values, names)
 
 
 def blueprint(subjects: Sequence[int], aggregate: bool = False) -> rrb.Blueprint:
@@ -275,24 +255,6 @@ def _bones(model: KinematicModel, links: tuple[str, ...]) -> tuple[list[int], li
     return child, parent
 
 
-def _quaternion_xyzw(R: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices [...,3,3] to unit quaternions [...,4] (x, y, z, w), rerun's order.
-
-    Each row of `candidates` is 4 q_k q for one k; the row with the largest diagonal entry 4 q_k^2
-    is the one whose normalisation is well conditioned (Shepperd's method)."""
-    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = (r.unbind(-1) for r in R.unbind(-2))
-    candidates = torch.stack((
-        torch.stack((1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01), -1),  # 4w (w, x, y, z)
-        torch.stack((m21 - m12, 1 + m00 - m11 - m22, m01 + m10, m02 + m20), -1),  # 4x (w, x, y, z)
-        torch.stack((m02 - m20, m01 + m10, 1 - m00 + m11 - m22, m12 + m21), -1),  # 4y
-        torch.stack((m10 - m01, m02 + m20, m12 + m21, 1 - m00 - m11 + m22), -1),  # 4z
-    ), -2)  # [...,4,4]
-    best = candidates.diagonal(dim1=-2, dim2=-1).argmax(-1)  # [...]
-    q = candidates.gather(-2, best[..., None, None].expand(*best.shape, 1, 4)).squeeze(-2)
-    q = q / q.norm(dim=-1, keepdim=True)
-    return q[..., [1, 2, 3, 0]]
-
-
 def _split_diagnostics(diagnostics: dict[str, torch.Tensor], T: int, B: int, n_targets: int):
     """Per-subject scalar series {name: [T,B]} and whole-batch ones {name: [T]}, as float64 NumPy."""
     if "residual_norm" not in diagnostics or tuple(diagnostics["residual_norm"].shape) != (T, B, n_targets):
@@ -312,46 +274,6 @@ def _split_diagnostics(diagnostics: dict[str, torch.Tensor], T: int, B: int, n_t
     return per_subject, per_batch
 
 
-def _log_visuals(rec: rr.RecordingStream, path: str, shapes: Sequence[Visual], color: tuple[int, int, int]) -> None:
-    """A link's visual shapes at `path`, static, in the link frame: primitives of one kind in one
-    archetype; each mesh at path/mesh<k> with its origin and scale."""
-    rgba = lambda v: [int(255 * c) for c in v.rgba] if v.rgba is not None else [*color, 255]  # noqa: E731
-    by_kind: dict[str, list[Visual]] = {}
-    for v in shapes:
-        by_kind.setdefault(v.kind, []).append(v)
-    common = lambda vs: dict(centers=[v.translation for v in vs], quaternions=[v.quaternion for v in vs],  # noqa: E731
-                             colors=[rgba(v) for v in vs])
-    if "box" in by_kind:
-        vs = by_kind["box"]
-        rec.log(path, rr.Boxes3D(half_sizes=[[s / 2 for s in v.size] for v in vs], **common(vs)), static=True)
-    if "cylinder" in by_kind:
-        vs = by_kind["cylinder"]
-        rec.log(path, rr.Cylinders3D(radii=[v.size[0] for v in vs], lengths=[v.size[1] for v in vs], **common(vs)),
-                static=True)
-    if "sphere" in by_kind:
-        vs = by_kind["sphere"]
-        rec.log(path, rr.Ellipsoids3D(half_sizes=[[v.size[0]] * 3 for v in vs], **common(vs)), static=True)
-    for k, v in enumerate(by_kind.get("mesh", ())):
-        rec.log(f"{path}/mesh{k}", rr.Transform3D(translation=v.translation, quaternion=v.quaternion, scale=v.size),
-                rr.Asset3D(path=v.mesh, albedo_factor=rgba(v)), static=True)
-
-
-def _find_mesh(filename: str, folder: Path) -> Path | None:
-    """A URDF mesh reference as a file: package://PACKAGE/REST in a folder PACKAGE at or above
-    `folder` (or beside one), file://PATH, or a path relative to `folder`."""
-    if filename.startswith("package://"):
-        package, _, rest = filename[len("package://"):].partition("/")
-        for above in (folder, *folder.parents):
-            candidates = [above / package / rest] + ([above / rest] if above.name == package else [])
-            found = [c for c in candidates if c.is_file()]
-            if found:
-                return found[0]
-        return None
-    path = Path(filename[len("file://"):] if filename.startswith("file://") else filename)
-    path = path if path.is_absolute() else folder / path
-    return path if path.is_file() else None
-
-
 def _log_targets(rec: rr.RecordingStream, root: str, time: torch.Tensor, targets: TargetSequence, i: int,
                  links: tuple[str, ...], position_links: tuple[str, ...], estimate: np.ndarray,
                  axis_length: float) -> None:
@@ -365,7 +287,7 @@ def _log_targets(rec: rr.RecordingStream, root: str, time: torch.Tensor, targets
         if link in links:
             where[:, links.index(link)] = targets.position[:T, i, j].detach().to("cpu", torch.float64)
     known = (torch.isfinite(rotation).flatten(-2).all(-1) & torch.isfinite(where).all(-1)).numpy()  # [T,L]
-    quaternion, where = _quaternion_xyzw(torch.nan_to_num(rotation)).numpy(), where.numpy()
+    quaternion, where = quaternion_xyzw(torch.nan_to_num(rotation)).numpy(), where.numpy()
     seconds = time.detach().to("cpu", torch.float64).numpy()
     for k, link in enumerate(links):
         name = f"{root}/{rr.escape_entity_path_part(link)}"

@@ -26,6 +26,10 @@ unaffected.
 The linear solves use the step's tree structure when the problem carries it (`TreeHessian`,
 O(N) per subject) and a batched dense Cholesky factorisation otherwise (and for small gathered
 batches, where the tree's fixed cost per level dominates).
+
+`_interior_point` is longer than this project's 80 lines on purpose: Mehrotra's method read top to
+bottom as textbooks write it (start, residuals, predictor, corrector, step length); split, its
+dozen shared quantities would travel through every call.
 """
 
 from __future__ import annotations
