@@ -23,10 +23,10 @@ def spin(step, steps: int):
 
 
 def test_baumgarte_keeps_the_drift_bounded_at_the_level_the_step_implies():
-    errors, R = spin(lambda R, w, dt: baumgarte_step(R, w, dt, rho=100.0), 100_000)
+    errors, R = spin(lambda R, w, dt: baumgarte_step(R, w, dt, rho=100.0), 30_000)
     level = 1.16 ** 2 * 0.01 / 100.0  # |omega|^2 dt / rho = 1.35e-4
     assert float(errors.max()) < 2 * level
-    assert float(errors[-10_000:].max()) <= 1.01 * float(errors[:10_000].max())  # does not grow with time
+    assert float(errors[-3_000:].max()) <= 1.01 * float(errors[:3_000].max())  # does not grow with time
     assert float((orthonormalize(R)[0].T @ orthonormalize(R)[0] - torch.eye(3, dtype=torch.float64)).abs().max()) < 1e-12
 
 
@@ -55,7 +55,7 @@ def test_without_stabilisation_the_drift_grows_without_bound():
 
 
 def test_the_exponential_map_stays_orthonormal_to_rounding():
-    errors, _ = spin(exponential_step, 100_000)
+    errors, _ = spin(exponential_step, 30_000)
     assert float(errors.max()) < 1e-12
 
 
