@@ -36,7 +36,7 @@ demo: $(VENV)/.torchik
 	@echo "open the recording with: $(BIN)/rerun walk.rrd"
 
 test: $(VENV)/.torchik-test
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile  # both cores; a module's tests on one worker (its fixtures built once)
 
 check: $(VENV)/.torchik-dev
 	$(BIN)/ruff check torchik tests experiments

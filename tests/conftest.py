@@ -1,5 +1,6 @@
 """Shared fixtures: the published reference models (skipped when ../shared is absent)."""
 
+import os
 from pathlib import Path
 
 import pytest
@@ -8,6 +9,9 @@ import torch
 from torchik.method import so3
 
 REPO = Path(__file__).resolve().parents[1]
+
+if os.environ.get("PYTEST_XDIST_WORKER"):  # `make test` runs one worker per core: more torch threads would only contend
+    torch.set_num_threads(1)
 REFERENCE = REPO.parent / "shared" / "reference-models"
 
 
