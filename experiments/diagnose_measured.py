@@ -28,12 +28,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from torchik.io import read
-from torchik.pipelines.diagnosis.loop import Diagnosis, diagnose
-from torchik.pipelines.diagnosis.report import errors_figure, write
-from torchik.io import map_recording
+from torchik.io import map_recording, read
 from torchik.method.kinematics import KinematicModel
 from torchik.method.models import TRACKED_LINKS, human_urdf
+from torchik.pipelines.diagnosis.loop import Diagnosis, diagnose
+from torchik.pipelines.diagnosis.report import errors_figure, write
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 MODELS = ("human48", "human66")

@@ -14,10 +14,10 @@ import json
 
 import torch
 
-from torchik.pipelines.memory import keep_freed_memory
 from torchik.method.models import TRACKED_LINKS, load_model
-from torchik.synthetic.motion import periodic_motion, targets_from_motion
 from torchik.method.tracker import DynamicalIK
+from torchik.pipelines.memory import keep_freed_memory
+from torchik.synthetic.motion import periodic_motion, targets_from_motion
 
 
 def main() -> None:

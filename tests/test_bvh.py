@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from torchik.method import so3
 from torchik.io import RecordingError
 from torchik.io.bvh import read_bvh
+from torchik.method import so3
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "bvh"
 

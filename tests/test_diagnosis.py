@@ -28,6 +28,7 @@ import numpy as np
 import pytest
 import torch
 
+from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.diagnosis.calibration import apply_calibration
 from torchik.pipelines.diagnosis.effect import GUARD, halves
 from torchik.pipelines.diagnosis.gyro import GyroBias, GyroScale, StreamDelay
@@ -36,7 +37,6 @@ from torchik.pipelines.diagnosis.loop import diagnose, errors
 from torchik.pipelines.diagnosis.placement import HeadingDrift, Misalignment, SensorDelay
 from torchik.pipelines.diagnosis.position import PositionOffset
 from torchik.pipelines.diagnosis.synthetic import beyond_limit, recording_of, with_missing_dof
-from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.synthetic.scenarios import scenario
 
 SEEDS = range(10)

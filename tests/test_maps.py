@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 import torch
 
-from torchik.method import so3
 from torchik.io import RecordingError, apply_map, calibrate, load_map
 from torchik.io.maps import LinkEntry, LinkMap, reference_configuration
 from torchik.io.recording import Recording
-from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.io.targets import recording_targets
-from torchik.synthetic.scenarios import scenario
-from torchik.method.tracker import DynamicalIK
+from torchik.method import so3
+from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.method.state import State
+from torchik.method.tracker import DynamicalIK
+from torchik.synthetic.scenarios import scenario
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 

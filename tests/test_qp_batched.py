@@ -5,15 +5,15 @@ import numpy as np
 import pytest
 import qpsolvers
 import torch
-
 from step_problems import step_problems
+
 from torchik import KinematicModel
 from torchik.method.limits import LimitSettings
 from torchik.method.models import TRACKED_LINKS, HumanSubject, load_model
 from torchik.method.qp import BatchedBackend, DenseHessian, PiqpBackend, QPProblem
-from torchik.synthetic.motion import periodic_motion, targets_from_motion
-from torchik.method.tracker import DynamicalIK
 from torchik.method.state import TargetSequence
+from torchik.method.tracker import DynamicalIK
+from torchik.synthetic.motion import periodic_motion, targets_from_motion
 
 # 1000 problems in all
 SIZES = {"human66": 400, "human48": 300, "icub": 300}

@@ -3,8 +3,8 @@ elimination solves with held variables and extra diagonals exactly as a dense Ch
 
 import pytest
 import torch
-
 from step_problems import step_problems
+
 from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.method.qp import DenseHessian, JointTree, TreeHessian
 from torchik.method.task import TaskStructure, normal_equations

@@ -7,8 +7,8 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from torchik.method import so3
 from torchik.io import Recording, RecordingError, angular_velocity_from_orientations, load_recording, save_recording
+from torchik.method import so3
 
 
 @st.composite

@@ -7,14 +7,14 @@ import rerun.chunk
 import torch
 
 from torchik import InputError, so3
-from torchik.method.models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_model
-from torchik.pipelines.rrd import quaternion_xyzw, log_trajectory, visuals
 from torchik.io.targets import recording_targets
-from torchik.synthetic.scenarios import scenario
-from torchik.synthetic.motion import periodic_motion, targets_from_motion
-from torchik.pipelines.evaluation import tracking_errors
-from torchik.pipelines.track import track_recording
+from torchik.method.models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_model
 from torchik.method.tracker import DynamicalIK
+from torchik.pipelines.evaluation import tracking_errors
+from torchik.pipelines.rrd import log_trajectory, quaternion_xyzw, visuals
+from torchik.pipelines.track import track_recording
+from torchik.synthetic.motion import periodic_motion, targets_from_motion
+from torchik.synthetic.scenarios import scenario
 
 
 def read_rrd(path, contents, index="time"):

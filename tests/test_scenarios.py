@@ -6,10 +6,10 @@ import torch
 
 from torchik import InputError
 from torchik.io import angular_velocity_from_orientations
-from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.io.targets import recording_targets
-from torchik.synthetic.scenarios import SCENARIOS, scenario
+from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.method.tracker import DynamicalIK
+from torchik.synthetic.scenarios import SCENARIOS, scenario
 
 MODELS = {name: load_model(name) for name in ("human66", "human48", "icub")}
 

@@ -2,11 +2,10 @@
 
 import pytest
 import torch
+from conftest import random_configurations
 
 from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.method.task import TaskStructure, normal_equations
-
-from conftest import random_configurations
 
 
 @pytest.mark.parametrize("name,position_links", [("human66", ("Pelvis",)), ("human48", ("Pelvis", "RightHand", "LeftToe")),

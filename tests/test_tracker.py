@@ -7,12 +7,12 @@ import pytest
 import torch
 
 from torchik import InputError, KinematicModel, so3
-from torchik.method.models import TRACKED_LINKS, HumanSubject, load_model
 from torchik.method.metrics import orientation_error
-from torchik.synthetic.motion import periodic_motion, targets_from_motion
+from torchik.method.models import TRACKED_LINKS, HumanSubject, load_model
+from torchik.method.state import State
 from torchik.method.targets import Targets
 from torchik.method.tracker import DynamicalIK
-from torchik.method.state import State
+from torchik.synthetic.motion import periodic_motion, targets_from_motion
 
 F64 = dict(dtype=torch.float64)
 

@@ -12,8 +12,17 @@ experiment, bench, rrd), `cli/` (the `torchik` command).
 """
 
 from .errors import InputError, ModelError, TorchikError, UnknownLinkError
-from .io import (Recording, RecordingError, load_map, load_recording, map_recording, read, recording_targets,
-                 save_recording, save_trajectory)
+from .io import (
+    Recording,
+    RecordingError,
+    load_map,
+    load_recording,
+    map_recording,
+    read,
+    recording_targets,
+    save_recording,
+    save_trajectory,
+)
 from .method import so3
 from .method.kinematics import KinematicModel, LinearLimits, LinkKinematics
 from .method.limits import LimitSettings

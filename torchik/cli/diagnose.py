@@ -14,9 +14,9 @@ import argparse
 import time
 from pathlib import Path
 
-from .common import add_map_arguments
 from ..errors import InputError
 from ..method.settings import TrackerSettings
+from .common import add_map_arguments
 
 EXAMPLES = """examples:
   torchik diagnose walk.npz --model human48 --report diag/

@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..method import so3
 from ..errors import InputError
+from ..method import so3
 
 
 class RecordingError(InputError):

@@ -38,15 +38,15 @@ from dataclasses import dataclass
 
 import torch
 
-from . import so3
 from ..errors import InputError
+from . import so3
 from .kinematics import KinematicModel
 from .metrics import orientation_error
 from .qp import QPProblem, make_backend
 from .residual import orientation_residual
+from .state import State, TargetSequence, Trajectory
 from .targets import Targets, clean_targets
 from .task import TaskStructure, normal_equations
-from .state import State, TargetSequence, Trajectory
 
 
 @dataclass(frozen=True)

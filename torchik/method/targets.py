@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import torch
 
-from . import so3
 from ..errors import InputError
+from . import so3
 
 
 @dataclass(frozen=True)

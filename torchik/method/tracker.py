@@ -37,8 +37,8 @@ from .qp import BACKENDS, QPBackend, QPProblem, TreeHessian, make_backend
 from .residual import corrected_velocity, orientation_residual, position_residual
 from .scheme import Evaluation, SchemeHistory
 from .settings import SCHEMES, TrackerSettings
-from .structure import BatchSetup, StepStructure
 from .state import State, StepDiagnostics, TargetSequence, Trajectory
+from .structure import BatchSetup, StepStructure
 from .targets import Targets, check_targets, clean_targets
 from .task import Objective, normal_equations
 

@@ -114,8 +114,8 @@ def _synchronize(device: str) -> None:
 def bench_torchik_loop(name: str, steps: int, warmup: int = 10) -> Measurement:
     """torchik's tracker for one subject with the PIQP backend, step after step."""
     from ..method.models import TRACKED_LINKS, load_model
-    from ..synthetic.motion import targets_from_motion
     from ..method.tracker import DynamicalIK
+    from ..synthetic.motion import targets_from_motion
 
     model, links = load_model(name), TRACKED_LINKS[name]
     motion = _motion(model, 1, warmup + steps)

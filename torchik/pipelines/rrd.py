@@ -37,17 +37,15 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from ..errors import optional
-
-rr = optional("rerun", "viz", "writing rerun recordings")
-rrb = optional("rerun.blueprint", "viz", "writing rerun recordings")
-
-from ..errors import InputError
+from ..errors import InputError, optional
 from ..io.files import replacing
 from ..method.kinematics import KinematicModel
 from ..method.state import TargetSequence, Trajectory
 from .evaluation import time_chunks
 from .visuals import Visual, log_visuals, quaternion_xyzw, visuals  # noqa: F401  (visuals: part of this module's API)
+
+rr = optional("rerun", "viz", "writing rerun recordings")
+rrb = optional("rerun.blueprint", "viz", "writing rerun recordings")
 
 GROUPS = {"mnte": "errors", "rmse": "errors", "active_constraints": "solver", "solved": "solver",
           "dropped": "solver", "projected": "solver"}  # per-subject diagnostics [T,B]; others: "diagnostics"

@@ -17,9 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..method import so3
 from ..errors import InputError
 from ..io.recording import Recording
+from ..method import so3
 from ..method.kinematics import KinematicModel
 from .motion import Motion, _rz_ry_rx, targets_from_motion
 

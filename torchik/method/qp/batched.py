@@ -142,8 +142,8 @@ class BatchedBackend(QPBackend):
         eta = None if G is None else g.new_zeros(G.shape[:2])
         live, sub_H, sub = None, H, problem
         iteration = 0
-        for iteration in range(1, budget + 1):
-            pick = (lambda t: t) if live is None else (lambda t: None if t is None else t.index_select(0, live))
+        for iteration in range(1, budget + 1):  # noqa: B007  (the count is returned)
+            pick = (lambda t: t) if live is None else (lambda t, live=live: None if t is None else t.index_select(0, live))
             u, l, r = pick(upper), pick(lower), pick(rows)
             x_new, eta_new, nu_new, r, degenerate = self._solve_on(sub_H, sub.g, sub.lb, sub.ub, sub.G, sub.h, u, l, r)
             new_u, new_l, new_r, same = _next_active_set(sub, x_new, nu_new, eta_new, u, l, r, tolerance)

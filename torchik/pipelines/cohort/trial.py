@@ -35,13 +35,13 @@ import torch
 
 from ...io.maps import map_recording
 from ...io.recording import Recording
-from ...method.kinematics import KinematicModel
-from ...method.models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_model
 from ...io.targets import recording_targets
 from ...io.trajectory import save_trajectory
-from ..evaluation import summary, tracking_errors, tracking_statistics
-from ...method.tracker import DynamicalIK
+from ...method.kinematics import KinematicModel
+from ...method.models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_model
 from ...method.state import TargetSequence, Trajectory
+from ...method.tracker import DynamicalIK
+from ..evaluation import summary, tracking_errors, tracking_statistics
 from .manifest import TrialSpec, human_subject
 from .plan import Batch
 

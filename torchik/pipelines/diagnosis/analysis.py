@@ -27,13 +27,13 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from ...method import so3
 from ...io.recording import Recording, angular_velocity_from_orientations
+from ...method import so3
 from ...method.kinematics import KinematicModel
-from ..evaluation import link_motion
-from ...method.tracker import DynamicalIK
-from ...method.state import State, TargetSequence, Trajectory
 from ...method.settings import TrackerSettings
+from ...method.state import State, TargetSequence, Trajectory
+from ...method.tracker import DynamicalIK
+from ..evaluation import link_motion
 
 DEFAULT_GAIN = TrackerSettings.orientation_gain  # the tracker's K (1/s), from its one source
 NO_LIMIT = 19.9  # rad: a range this wide is no limit (the URDFs write +-10 rad for none)

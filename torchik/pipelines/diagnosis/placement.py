@@ -237,7 +237,7 @@ def _drift(analysis: Analysis, b: int, usable: list[int], tr: torch.Tensor, te: 
         y_tr, y_te = e_z[tr[n], usable[n]], e_z[te[n], usable[n]]
         extra.append((torch.tensor([[float(tr[n].sum())]], dtype=time.dtype), -y_tr.sum()[None],
                       max(float(y_tr.var(unbiased=False)), 1e-12), y_te[:, None],  # noise about the constant fitted
-                      lambda theta, m=len(y_te): -theta[0].expand(m)[:, None]))
+                      lambda theta, m=len(y_te): -theta[0].expand(m)[:, None]))  # noqa: B008  (m bound per gyro)
     fits = {}
     for group, channel in ((gyro, extra), (none, None)):
         if group:

@@ -26,7 +26,6 @@ from .analysis import Analysis
 from .effect import SIGNIFICANT
 from .loop import Diagnosis
 
-
 _pyplot = pyplot
 
 
