@@ -119,7 +119,8 @@ def test_jacobian_matches_finite_differences(name):
             return model(p + dp, dR @ R, s + ds, links, jacobian=False)
         plus, minus = moved(1.0), moved(-1.0)
         v = (plus.position - minus.position) / (2 * eps)
-        w = so3.vee(plus.rotation @ minus.rotation.transpose(-1, -2) - minus.rotation @ plus.rotation.transpose(-1, -2)) / (4 * eps)
+        turn = plus.rotation @ minus.rotation.transpose(-1, -2)
+        w = so3.vee(turn - turn.transpose(-1, -2)) / (4 * eps)
         cols.append(torch.cat([v, w], dim=-1))
     J_fd = torch.stack(cols, dim=-1)
     assert (J - J_fd).abs().max() < 1e-7

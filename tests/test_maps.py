@@ -89,7 +89,8 @@ def test_maps_refuse_what_they_cannot_do():
     head_based = Recording(time=full.time, links=full.links, orientation=full.orientation,
                            angular_velocity=full.angular_velocity, base_link="Head", base_position=full.base_position,
                            base_linear_velocity=full.base_linear_velocity)
-    with pytest.raises(RecordingError, match="takes the base position from segment 'Pelvis'; the recording's base is 'Head'"):
+    with pytest.raises(RecordingError,
+                       match="takes the base position from segment 'Pelvis'; the recording's base is 'Head'"):
         apply_map(head_based, load_map("xsens_to_human"))
 
 

@@ -15,7 +15,8 @@ def test_the_tree_hessian_is_the_normal_matrix_of_the_step(name):
     model, links = load_model(name), TRACKED_LINKS[name]
     g = torch.Generator().manual_seed(0)
     B = 6
-    p, R = torch.randn(B, 3, generator=g, dtype=torch.float64), torch.linalg.qr(torch.randn(B, 3, 3, generator=g, dtype=torch.float64))[0]
+    p = torch.randn(B, 3, generator=g, dtype=torch.float64)
+    R = torch.linalg.qr(torch.randn(B, 3, 3, generator=g, dtype=torch.float64))[0]
     R = R * torch.sign(torch.linalg.det(R))[:, None, None]
     s = torch.randn(B, model.n_dof, generator=g, dtype=torch.float64)
     base = (model.base_link,)

@@ -37,7 +37,8 @@ def add_parser(subparsers) -> None:
                         EXAMPLES)
     source = track.add_mutually_exclusive_group()
     source.add_argument("--scenario", default="walking", help=f"built-in scenario: {', '.join(SCENARIOS)} (default walking)")
-    source.add_argument("--input", metavar="FILE", help="a recording (.npz) or source file whose segments are the model's links")
+    source.add_argument("--input", metavar="FILE",
+                        help="a recording (.npz) or source file whose segments are the model's links")
     add_map_arguments(track)
     track.add_argument("--model", default="human66", choices=MODELS)
     track.add_argument("--urdf", metavar="FILE", help="track with this URDF of --model instead, e.g. the model.urdf "

@@ -197,7 +197,8 @@ def apply_map(recording: Recording, link_map: LinkMap, model: KinematicModel | N
                              f"it has {list(recording.links)}")
     if recording.base_link != link_map.base_segment:
         raise RecordingError(f"map {link_map.name!r} takes the base position from segment {link_map.base_segment!r}; "
-                             f"the recording's base is {recording.base_link!r} (read it with base_link={link_map.base_segment!r})")
+                             f"the recording's base is {recording.base_link!r} "
+                             f"(read it with base_link={link_map.base_segment!r})")
     if any(e.offset is None for e in link_map.entries):
         if model is None:
             raise RecordingError(f"map {link_map.name!r} calibrates offsets: give the model (or calibrate() first)")

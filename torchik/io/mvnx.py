@@ -2,8 +2,8 @@
 
 Conventions (checked on a real MVN 2019 export, see ../shared/data/README.md): `orientation` is a
 quaternion w, x, y, z, segment to global; `angularVelocity` is in the global frame, rad/s;
-`position` and `velocity` are global, m and m/s. Normal frames carry `index` (frames since the start; time = index / frameRate, exact) and `time`
-(ms, rounded, used when there is no index).
+`position` and `velocity` are global, m and m/s. Normal frames carry `index` (frames since the
+start; time = index / frameRate, exact) and `time` (ms, rounded, used when there is no index).
 The calibration frames (`identity`, `tpose`, `tpose-isb`) go into meta["calibration"].
 
 The file is parsed as a stream (ElementTree.iterparse, elements cleared once read), so memory holds

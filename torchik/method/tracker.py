@@ -209,8 +209,8 @@ class DynamicalIK:
                 now = model.rotations(R_B, q.joint_positions, links, joint_axes=True)
                 return StepKinematics(now.rotation, p_hat, now.joint_axes, None)
             if stacked:
-                both = model.rotations(torch.cat((R_B, at.base_rotation)), torch.cat((q.joint_positions, at.joint_positions)),
-                                       links, joint_axes=True)
+                both = model.rotations(torch.cat((R_B, at.base_rotation)),
+                                       torch.cat((q.joint_positions, at.joint_positions)), links, joint_axes=True)
                 return StepKinematics(both.rotation[:B], p_hat, both.joint_axes[B:], None)
             return StepKinematics(model.rotations(R_B, q.joint_positions, links).rotation, p_hat,
                                   model.rotations(at.base_rotation, at.joint_positions, links, joint_axes=True).joint_axes,

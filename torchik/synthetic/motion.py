@@ -75,7 +75,8 @@ def periodic_motion(model: KinematicModel, duration: float, rate: float, batch: 
     p_dot = torch.stack((torch.full_like(tt, forward_speed), 0.05 * w * torch.cos(w * tt),
                          0.04 * w * torch.cos(2 * w * tt)), -1)
     yaw, pitch, roll = 0.3 * torch.sin(w * tt), 0.1 * torch.sin(2 * w * tt + 0.5), 0.08 * torch.sin(w * tt + 1.0)
-    d_yaw, d_pitch, d_roll = 0.3 * w * torch.cos(w * tt), 0.2 * w * torch.cos(2 * w * tt + 0.5), 0.08 * w * torch.cos(w * tt + 1.0)
+    d_yaw, d_pitch = 0.3 * w * torch.cos(w * tt), 0.2 * w * torch.cos(2 * w * tt + 0.5)
+    d_roll = 0.08 * w * torch.cos(w * tt + 1.0)
     R, Rz, Ry = _rz_ry_rx(yaw, pitch, roll)
     ez = torch.tensor([0.0, 0.0, 1.0], **kw)
     omega = (d_yaw[..., None] * ez + d_pitch[..., None] * Rz[..., :, 1] + d_roll[..., None] * (Rz @ Ry)[..., :, 0])

@@ -124,7 +124,8 @@ def scenario_motion(name: str, model: KinematicModel, duration: float = 10.0, ra
     p = torch.stack((gait.speed * t, gait.sway * torch.sin(w * t), height + gait.bob * torch.sin(2 * w * t)), -1)
     p_dot = torch.stack((torch.full_like(t, gait.speed), gait.sway * w * torch.cos(w * t),
                          2 * gait.bob * w * torch.cos(2 * w * t)), -1)
-    yaw, pitch, roll = gait.yaw * torch.sin(w * t), 0.5 * gait.yaw * torch.sin(2 * w * t), 0.5 * gait.yaw * torch.sin(w * t + 1)
+    yaw, pitch = gait.yaw * torch.sin(w * t), 0.5 * gait.yaw * torch.sin(2 * w * t)
+    roll = 0.5 * gait.yaw * torch.sin(w * t + 1)
     d_yaw = gait.yaw * w * torch.cos(w * t)
     d_pitch = gait.yaw * w * torch.cos(2 * w * t)
     d_roll = 0.5 * gait.yaw * w * torch.cos(w * t + 1)

@@ -97,6 +97,7 @@ def clipped_fallback(problem: QPProblem) -> torch.Tensor:
     if problem.G is not None:
         Gx = (problem.G @ x.unsqueeze(-1)).squeeze(-1)
         # largest alpha in [0, 1] with alpha G x <= h on every row where G x > h
-        ratio = torch.where(Gx > problem.h, problem.h.clamp(min=0) / Gx.clamp(min=torch.finfo(Gx.dtype).tiny), torch.ones_like(Gx))
+        tiny = torch.finfo(Gx.dtype).tiny
+        ratio = torch.where(Gx > problem.h, problem.h.clamp(min=0) / Gx.clamp(min=tiny), torch.ones_like(Gx))
         x = x * ratio.min(dim=-1, keepdim=True).values.clamp(0.0, 1.0)
     return x

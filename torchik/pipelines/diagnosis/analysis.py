@@ -185,7 +185,8 @@ def track(model: KinematicModel, recordings: Sequence[Recording], links, gain: f
     held = tracker.run(TargetSequence(sequence.time[0] + dt * torch.arange(n - 1, -1, -1.0, dtype=sequence.time.dtype).neg(),
                                       still(first.position), torch.zeros_like(still(first.linear_velocity)),
                                       still(first.rotation), torch.zeros_like(still(first.angular_velocity))))
-    rest = State(held.base_position[-1], held.base_rotation[-1], held.joint_positions[-1], torch.zeros_like(held.velocity[-1]))
+    rest = State(held.base_position[-1], held.base_rotation[-1], held.joint_positions[-1],
+                 torch.zeros_like(held.velocity[-1]))
     return tracker.run(sequence, initial=rest, progress=progress)
 
 
@@ -235,7 +236,8 @@ def analyse(model: KinematicModel, recordings: Sequence[Recording], links, traje
     J = J * rows[..., None].to(J.dtype)
     A = inverse_normal(J)
     return Analysis(model, links, time, R_m, w_m, p_m, v_m, R_hat, w_hat, p_hat, r, r_link, w_m - w_hat, e,
-                    p_m - p_hat, torch.nan_to_num(e_p), valid, derived, velocity_derived, s, active, sample, J, A, rows, axes, trajectory)
+                    p_m - p_hat, torch.nan_to_num(e_p), valid, derived, velocity_derived, s, active, sample, J, A, rows,
+                    axes, trajectory)
 
 
 def inverse_normal(J: torch.Tensor, damping: float = 1e-9) -> torch.Tensor:
@@ -290,7 +292,8 @@ def link_summary(analysis: Analysis, b: int = 0, transient: float = 1.0) -> list
     of r's power), gyro_rms (|e| rms, rad/s: the gyro against the orientations), velocity_rms (|u|
     rms, rad/s)."""
     time = analysis.time
-    keep = (time >= time[0] + transient) if float(time[-1] - time[0]) > 2 * transient else torch.ones_like(time, dtype=torch.bool)
+    long_enough = float(time[-1] - time[0]) > 2 * transient
+    keep = (time >= time[0] + transient) if long_enough else torch.ones_like(time, dtype=torch.bool)
     rows = []
     rate = 1.0 / float(torch.diff(time).median()) if len(time) > 1 else 1.0
     above = analysis.model.select(analysis.links).ancestor_mask.bool()  # [L,n]

@@ -44,7 +44,8 @@ class GyroBias(Effect):
 
     def summary(self):
         b = np.asarray(self.params["bias"])
-        return f"gyro bias on {self.target}: {np.linalg.norm(b) * 180 / np.pi:.2f} deg/s ({', '.join(f'{x:+.4f}' for x in b)} rad/s, sensor frame)"
+        components = ", ".join(f"{x:+.4f}" for x in b)
+        return f"gyro bias on {self.target}: {np.linalg.norm(b) * 180 / np.pi:.2f} deg/s ({components} rad/s, sensor frame)"
 
 
 @dataclass
@@ -87,7 +88,8 @@ class StreamDelay(Effect):
         return replace(recording, angular_velocity=w)
 
     def implausible(self):
-        return f"a delay of {self.params['delay']:.3g} s, beyond {MAX_DELAY} s" if abs(self.params["delay"]) > MAX_DELAY else ""
+        delay = self.params["delay"]
+        return f"a delay of {delay:.3g} s, beyond {MAX_DELAY} s" if abs(delay) > MAX_DELAY else ""
 
     def summary(self):
         which = f"every gyro ({len(self.params['links'])} sensors)" if self.target == "all" else f"gyro of {self.target}"

@@ -150,7 +150,8 @@ class SensorDelay(Effect):
         return replace(recording, orientation=R, angular_velocity=w)
 
     def implausible(self):
-        return f"a delay of {self.params['delay']:.3g} s, beyond {MAX_DELAY} s" if abs(self.params["delay"]) > MAX_DELAY else ""
+        delay = self.params["delay"]
+        return f"a delay of {delay:.3g} s, beyond {MAX_DELAY} s" if abs(delay) > MAX_DELAY else ""
 
     def summary(self):
         return f"the {self.target} sensor is late on the others by {1e3 * self.params['delay']:.1f} ms"
