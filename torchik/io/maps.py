@@ -1,7 +1,8 @@
 """Link maps: from a source's segments to a model's links, with constant frame offsets.
 
-A map is a TOML file (see models/maps/). For each model link it names the source segment and the
-constant rotation C between their frames, R_link = R_segment C, given as one of
+A map is a TOML file (the built-in ones: torchik/data/maps/, also shown as models/maps/). For each
+model link it names the source segment and the constant rotation C between their frames,
+R_link = R_segment C, given as one of
 
 - `link_in_segment_rpy = [r, p, y]`: C = R(rpy), the link frame in the segment frame;
 - `segment_in_link_rpy = [r, p, y]`: C = R(rpy)^T (how robot models publish "fake" frames);
@@ -19,16 +20,16 @@ from __future__ import annotations
 import math
 import tomllib
 from dataclasses import dataclass
+from importlib.resources.abc import Traversable
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from ..data import maps_folder
 from ..method import so3
 from ..method.kinematics import KinematicModel
 from .recording import Recording, RecordingError
-
-MAPS_DIR = Path(__file__).resolve().parents[2] / "models" / "maps"
 
 
 @dataclass(frozen=True)
@@ -77,14 +78,14 @@ def calibration_frame(text: str) -> int | str:
 
 def built_in_maps() -> list[str]:
     """The names of the maps torchik ships."""
-    return sorted(p.stem for p in MAPS_DIR.glob("*.toml"))
+    return sorted(p.name.removesuffix(".toml") for p in maps_folder().iterdir() if p.name.endswith(".toml"))
 
 
 def load_map(name_or_path: str | Path) -> LinkMap:
-    """A map by file path or built-in name (a file in models/maps/ without its suffix)."""
-    path = Path(name_or_path)
-    if not path.suffix:
-        path = MAPS_DIR / f"{name_or_path}.toml"
+    """A map by file path or built-in name (a file in torchik/data/maps/ without its suffix)."""
+    path: Path | Traversable = Path(name_or_path)
+    if not Path(name_or_path).suffix:
+        path = maps_folder() / f"{name_or_path}.toml"
     if not path.is_file():
         raise RecordingError(f"no link map {str(name_or_path)!r}; built-in maps: {', '.join(built_in_maps())}")
     try:
