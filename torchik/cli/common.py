@@ -37,7 +37,9 @@ def add_map_arguments(parser: argparse.ArgumentParser, target: str = "the model'
     from ..io.maps import built_in_maps
 
     parser.add_argument("--map", help=f"link map from the recording's segments to {target}: a built-in name "
-                                      f"({', '.join(built_in_maps())}) or a .toml file")
+                                      f"({', '.join(built_in_maps())}), a .toml file, or auto (the built-in map "
+                                      f"whose segments the recording has; the default when its segments are not "
+                                      f"the model's links)")
     parser.add_argument("--calibration", metavar="FILE", help="a static trial to calibrate the map's offsets on")
     parser.add_argument("--calibration-frame", type=frame_argument, default=None,
                         help="the frame holding the reference pose: an index, or 'rest' for a BVH rest pose "

@@ -96,11 +96,14 @@ def run(args: argparse.Namespace) -> int:
     urdf = Path(args.urdf).read_text() if args.urdf else human_urdf(int(args.model[-2:]))
     model = KinematicModel.from_urdf(urdf, name=f"Human{args.model[-2:]}" + ("+" if args.urdf else ""))
     recording = read(args.recording)
-    if args.map:
+    from ..io.maps import default_map
+
+    map_name = args.map or default_map(recording.links, model)
+    if map_name:
         from ..io import map_recording
 
         static = read(args.calibration) if args.calibration else None
-        recording, _ = map_recording(recording, args.map, model, static, args.calibration_frame)
+        recording, _ = map_recording(recording, map_name, model, static, args.calibration_frame)
     links = [name for name in TRACKED_LINKS[args.model] if name in recording.links]
     if model.base_link not in links:
         raise InputError(f"{args.recording}: no {model.base_link} among its segments {list(recording.links)}; "

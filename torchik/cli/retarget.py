@@ -17,6 +17,7 @@ from .common import add_map_arguments
 
 def run(args: argparse.Namespace) -> int:
     from ..io import map_recording, read
+    from ..io.maps import default_map
     from ..method.models import load_model
 
     out = Path(args.out)
@@ -27,9 +28,11 @@ def run(args: argparse.Namespace) -> int:
     if not Path(args.recording).is_file():
         raise InputError(f"{args.recording}: no such file")
     recording = read(args.recording)
-    if args.map:
+    human = load_model("human66")
+    map_name = args.map or default_map(recording.links, human)
+    if map_name:
         static = read(args.calibration) if args.calibration else None
-        recording, _ = map_recording(recording, args.map, load_model("human66"), static, args.calibration_frame)
+        recording, _ = map_recording(recording, map_name, human, static, args.calibration_frame)
     elif args.calibration:
         raise InputError("--calibration calibrates a --map; give the map too")
     threads = torch.get_num_threads()

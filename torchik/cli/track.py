@@ -69,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from ..io import map_recording, read, recording_targets, save_trajectory, write_json
+    from ..io.maps import default_map
     from ..method.models import TRACKED_LINKS, load_model
     from ..pipelines.track import track_recording
     from ..synthetic.scenarios import scenario
@@ -93,9 +94,10 @@ def run(args: argparse.Namespace) -> int:
     if args.input:
         recording = read(args.input)
         source = args.input
-        if args.map:
+        map_name = args.map or default_map(recording.links, model)
+        if map_name:
             static = read(args.calibration) if args.calibration else None
-            recording, link_map = map_recording(recording, args.map, model, static, args.calibration_frame)
+            recording, link_map = map_recording(recording, map_name, model, static, args.calibration_frame)
             links = recording.links
             source += f" through map {link_map.name!r}"
     elif args.map or args.calibration:
