@@ -68,8 +68,32 @@ def torch_device(text: str):
     return device
 
 
-def model_urdf(name: str):
-    """A built-in model's URDF (text or path): what draws its body in a rerun recording."""
+def model_urdf(name: str, subject=None):
+    """A built-in model's URDF (text or path), for `subject` (a HumanSubject; default subject 1): what
+    draws its body in a rerun recording."""
     from ..method.models import human_urdf, icub_urdf_path
 
-    return icub_urdf_path() if name == "icub" else human_urdf(int(name[-2:]))
+    return icub_urdf_path() if name == "icub" else human_urdf(int(name[-2:]), subject)
+
+
+def add_subject_argument(parser: argparse.ArgumentParser) -> None:
+    """--subject-from: track with the subject's own human model, built from a recording."""
+    parser.add_argument("--subject-from", metavar="RECORDING",
+                        help="build the human model from this recording's skeleton (MVNX joint points, BVH bone "
+                             "offsets through the map, a C3D static trial's Plug-in Gait lengths; a converted .npz "
+                             "keeps them) instead of the default subject")
+
+
+def subject_from(path: str | None, map_name: str | None = None, say=print):
+    """The HumanSubject a recording measures (None without a path), with one line saying where its
+    numbers came from."""
+    if path is None:
+        return None
+    from ..io import read
+    from ..io.subjects import subject_from_recording
+
+    built = subject_from_recording(read(path), map_name=None if map_name in (None, "auto") else map_name)
+    say(f"subject from {path}: height {built.subject.height:.3f} m ({built.height_from}), mass "
+        f"{built.subject.mass:.1f} kg ({built.mass_from}); {len(built.from_file)} segment lengths and "
+        f"{len(built.subject.joint_origins)} joint placements from the file, {len(built.scaled)} segments scaled")
+    return built.subject

@@ -13,7 +13,15 @@ from ..method.models import MODELS
 from ..method.qp import BACKENDS
 from ..method.settings import SCHEMES, TrackerSettings
 from ..synthetic.scenarios import SCENARIOS
-from .common import add_command, add_map_arguments, check_outputs, model_urdf, torch_device
+from .common import (
+    add_command,
+    add_map_arguments,
+    add_subject_argument,
+    check_outputs,
+    model_urdf,
+    subject_from,
+    torch_device,
+)
 
 EXAMPLES = """examples:
   torchik track --scenario walking --model human66 --rrd walk.rrd --report walk.json
@@ -40,6 +48,7 @@ def add_parser(subparsers) -> None:
     source.add_argument("--input", metavar="FILE", help="a recording (.npz) or source file whose segments are the model's links")
     add_map_arguments(track)
     track.add_argument("--model", default="human66", choices=MODELS)
+    add_subject_argument(track)
     track.add_argument("--urdf", metavar="FILE", help="track with this URDF of --model instead, e.g. the model.urdf "
                        "`torchik diagnose` writes (--model still names the tracked links)")
     track.add_argument("--sensor-calibration", metavar="JSON", help="undo the sensor effects (offsets, biases, delays, "
@@ -84,12 +93,15 @@ def run(args: argparse.Namespace) -> int:
         # one subject's tensors are too small for torch to split, and on a busy machine its idle
         # threads spin and wait for each other: a step then takes several times longer
         torch.set_num_threads(1)
+    if args.subject_from and (args.urdf or args.model == "icub"):
+        raise InputError("--subject-from builds a human model: give it with --model human66 or human48, without --urdf")
+    subject = subject_from(args.subject_from, args.map, say=(lambda _: None) if args.quiet else print)
     if args.urdf:  # e.g. the augmented model a diagnosis wrote
         from ..pipelines.diagnosis.calibration import load_urdf_model
 
         model = load_urdf_model(args.urdf, args.model, device)
     else:
-        model = load_model(args.model, device=device)
+        model = load_model(args.model, subject, device=device)
     links = TRACKED_LINKS[args.model]
     if args.input:
         recording = read(args.input)
@@ -132,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
 
         start = time.perf_counter()
         targets = recording_targets(recording, links, dtype=model.dtype, device=model.device)
-        log_trajectory(args.rrd, model, links, trajectory, targets, urdf=args.urdf or model_urdf(args.model),
+        log_trajectory(args.rrd, model, links, trajectory, targets, urdf=args.urdf or model_urdf(args.model, subject),
                        progress=not args.quiet)
         if not args.quiet:
             print(f"wrote {args.rrd} in {time.perf_counter() - start:.1f} s; open it with: rerun {args.rrd}")

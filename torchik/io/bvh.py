@@ -268,6 +268,9 @@ def read_bvh(path: str | Path, units: str = "auto", scale: float | None = None, 
     meta = dict(source=str(path), format="bvh", units=units if units != "auto" else None, metres_per_unit=scale,
                 up=up, frame_rate=1.0 / dt,
                 channels={j.name: j.channels for j in joints}, rest_pose=rest,
+                # the bones: each joint's parent and OFFSET (m, torchik's axes), what builds a subject's model
+                skeleton=dict(format="bvh", parents={j.name: names[j.parent] if j.parent >= 0 else None for j in joints},
+                              offsets={j.name: (to_world @ j.offset * scale).tolist() for j in joints}),
                 note="segment frames are the BVH bones' own: calibrate them to a model with a link map")
     return Recording(time=time, links=names, orientation=R,
                      angular_velocity=angular_velocity_from_orientations(R, time),
