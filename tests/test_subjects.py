@@ -94,3 +94,18 @@ def test_track_with_the_subject_from_the_static_trial(tmp_path, capsys):
                  "--subject-from", str(c3d / "HC002D02.c3d"), "--model", "human48"]) == 0
     out = capsys.readouterr().out
     assert "subject from" in out and "height 1.450 m (the file)" in out and "through map 'plug-in gait to human'" in out
+
+
+@needs_shared
+def test_a_cohort_manifests_subject_from_column_builds_the_measured_subject(tmp_path):
+    from torchik.pipelines.cohort.manifest import ManifestError, read_manifest
+
+    static = SHARED / "c3d" / "HC002D02.c3d"
+    (tmp_path / "m.csv").write_text(f"trial,subject,recording,model,subject_from\n"
+                                    f"t1,s1,{SHARED / 'c3d' / 'HC002D25.c3d'},human48,{static}\n")
+    (spec,) = read_manifest(tmp_path / "m.csv")
+    assert spec.subject_model == subject_from_recording(read(static)).subject
+    (tmp_path / "bad.csv").write_text(f"trial,subject,recording,model,subject_from\n"
+                                      f"t1,s1,{SHARED / 'c3d' / 'HC002D25.c3d'},icub,{static}\n")
+    with pytest.raises(ManifestError, match="generate a human model"):
+        read_manifest(tmp_path / "bad.csv")
