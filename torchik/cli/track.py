@@ -53,6 +53,9 @@ def add_parser(subparsers) -> None:
                        "`torchik diagnose` writes (--model still names the tracked links)")
     track.add_argument("--sensor-calibration", metavar="JSON", help="undo the sensor effects (offsets, biases, delays, "
                        "drift) in the calibration.json `torchik diagnose` wrote for this session, after --map")
+    track.add_argument("--position-targets", nargs="+", metavar="LINK",
+                       help="links with position targets besides the base (e.g. RightHand LeftHand RightFoot LeftFoot): "
+                            "the recording's segment origins, as MVNX, BVH and C3D files give them")
     track.add_argument("--duration", type=float, default=10.0, help="scenario length in seconds (default 10)")
     track.add_argument("--rate", type=float, default=100.0, help="scenario rate in Hz (default 100)")
     track.add_argument("--seed", type=int, default=0)
@@ -127,7 +130,11 @@ def run(args: argparse.Namespace) -> int:
                                orientation_gain=args.gain if args.orientation_gain is None else args.orientation_gain,
                                scheme=args.scheme, backend=args.backend)
     start = time.perf_counter()
-    trajectory, report = track_recording(model, recording, links, settings, progress=not args.quiet)
+    position_links = None
+    if args.position_targets:
+        position_links = (model.base_link, *[name for name in args.position_targets if name != model.base_link])
+    trajectory, report = track_recording(model, recording, links, settings, progress=not args.quiet,
+                                         position_links=position_links)
     report.update(source=source, device=str(device), wall_time_s=time.perf_counter() - start)
     if not args.quiet:
         _print_report(report, source, model.name)

@@ -274,4 +274,5 @@ def read_bvh(path: str | Path, units: str = "auto", scale: float | None = None, 
                 note="segment frames are the BVH bones' own: calibrate them to a model with a link map")
     return Recording(time=time, links=names, orientation=R,
                      angular_velocity=angular_velocity_from_orientations(R, time),
-                     base_link=base_link, base_position=p[:, base].copy(), base_linear_velocity=velocity, meta=meta)
+                     base_link=base_link, base_position=p[:, base].copy(), base_linear_velocity=velocity, meta=meta,
+                     position=p)

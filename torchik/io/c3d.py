@@ -47,6 +47,12 @@ _PROCESSING_LENGTHS = {"RFE": "RFemurLength", "LFE": "LFemurLength", "RTI": "RTi
 _ORIGIN_LENGTHS = {"RHU": ("RCLO", "RHUO"), "LHU": ("LCLO", "LHUO"), "RRA": ("RHUO", "RRAO"), "LRA": ("LHUO", "LRAO")}
 
 
+# each segment's proximal joint centre, where a model's link has its origin: the hip joint centre,
+# and the origins of the parent bones (Plug-in Gait puts a bone's origin at its distal joint)
+PROXIMAL_JOINT = {"PEL": "PELO", "RFE": "RHJC", "LFE": "LHJC", "RTI": "RFEO", "LTI": "LFEO", "RFO": "RTIO", "LFO": "LTIO",
+                  "RHU": "RCLO", "LHU": "LCLO", "RRA": "RHUO", "LRA": "LHUO", "RHN": "RRAO", "LHN": "LRAO"}
+
+
 def _plug_in_gait_skeleton(parameters, xyz: np.ndarray, valid: np.ndarray, index: dict, unit: str) -> dict:
     """The subject's measures a Plug-in Gait file holds: height (m) and mass (kg) from PROCESSING,
     segment lengths (m) by Plug-in Gait segment, from PROCESSING or as the median distance between
@@ -131,6 +137,11 @@ def read_c3d(path: str | Path, base_link: str = "PEL", units: str | None = None)
                 first_frame=int(c3d["header"]["points"]["first_frame"]), triad_max_deviation=worst,
                 missing_frames=missing, skeleton=_plug_in_gait_skeleton(c3d["parameters"], xyz, valid, index, unit),
                 note="segment frames are Plug-in Gait's (anterior, lateral, proximal): calibrate them with a link map")
-    return Recording(time=time, links=tuple(segments), orientation=R,
+    position = np.full((T, len(segments), 3), np.nan)  # NaN: a segment without a joint centre, or not seen
+    for i, segment in enumerate(segments):
+        point = PROXIMAL_JOINT.get(segment)
+        if point in index:
+            position[:, i] = np.where(valid[:, index[point], None], xyz[:, index[point]], np.nan)
+    return Recording(time=time, links=tuple(segments), orientation=R, position=position,
                      angular_velocity=angular_velocity_from_orientations(R, time), base_link=base_link,
                      base_position=base_position, base_linear_velocity=velocity, meta=meta)

@@ -292,7 +292,7 @@ def apply_map(recording: Recording, link_map: LinkMap, model: KinematicModel | N
     return Recording(time=recording.time, links=link_map.links, orientation=R,
                      angular_velocity=recording.angular_velocity[:, ids], base_link=link_map.base_link,
                      base_position=recording.base_position, base_linear_velocity=recording.base_linear_velocity,
-                     meta=meta)
+                     meta=meta, position=None if recording.position is None else recording.position[:, ids])
 
 
 def map_recording(recording: Recording, map_name: str | Path, model: KinematicModel, static: Recording | None = None,

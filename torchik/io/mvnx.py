@@ -131,4 +131,4 @@ def read_mvnx(path: str | Path, base_link: str = "Pelvis") -> Recording:
     return Recording(time=time, links=tuple(segments), orientation=rotation,
                      angular_velocity=np.stack(data["angularVelocity"]).reshape(T, n, 3),
                      base_link=base_link, base_position=position[:, base].copy(),
-                     base_linear_velocity=velocity[:, base].copy(), meta=meta)
+                     base_linear_velocity=velocity[:, base].copy(), meta=meta, position=position)
