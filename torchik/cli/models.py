@@ -52,12 +52,12 @@ def run(args: argparse.Namespace) -> int:
         subject = HumanSubject(height=1.68 if args.height is None else args.height,
                                mass=62.2 if args.mass is None else args.mass, segment_lengths=dict(args.segment or []))
     if args.write:
-        names = [args.model] if args.model else ["human66", "human48"]
-        existing = [str(p) for p in (Path(args.write) / f"{name}.urdf" for name in names) if p.exists()]
+        chosen = [args.model] if args.model else ["human66", "human48"]
+        existing = [str(p) for p in (Path(args.write) / f"{name}.urdf" for name in chosen) if p.exists()]
         if existing and not args.force:  # the folder itself is made when missing
             raise InputError(f"{' and '.join(existing)} {'exists' if len(existing) == 1 else 'exist'}; "
                              f"add --force to overwrite")
-        for path in write_human_models(args.write, subject, [int(name[-2:]) for name in names]):
+        for path in write_human_models(args.write, subject, [int(name[-2:]) for name in chosen]):
             print(f"wrote {path}")
         return 0
     names = MODELS if not args.links else [args.links]

@@ -32,7 +32,8 @@ def track_recording(model: KinematicModel, recording: Recording, links, settings
     settings = settings or TrackerSettings()
     dt = float(np.median(np.diff(recording.time))) if len(recording.time) > 1 else settings.dt
     settings = dataclasses.replace(settings, dt=dt)
-    trajectory = DynamicalIK(model, links, position_links, settings=settings).run(sequence, progress=progress, interruptible=True)
+    trajectory = DynamicalIK(model, links, position_links, settings=settings).run(sequence, progress=progress,
+                                                                                  interruptible=True)
     done = len(trajectory.time)
     trajectory.diagnostics.update(tracking_errors(model, trajectory, sequence, links, settings.scheme))
     time = trajectory.time
