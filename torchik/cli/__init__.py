@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..data import version
 from ..errors import TorchikError
 from . import bench, cohort, diagnose, experiment, models, recordings, retarget, track
 from .common import Parser
@@ -24,6 +25,7 @@ def build_parser() -> Parser:
         epilog=track.EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.add_argument("--version", action="version", version=f"torchik {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for command in COMMANDS:

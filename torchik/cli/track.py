@@ -13,7 +13,15 @@ from ..method.models import MODELS
 from ..method.qp import BACKENDS
 from ..method.settings import SCHEMES, TrackerSettings
 from ..synthetic.scenarios import SCENARIOS
-from .common import add_command, add_map_arguments, check_outputs, model_urdf, torch_device
+from .common import (
+    add_command,
+    add_map_arguments,
+    add_subject_argument,
+    check_outputs,
+    model_urdf,
+    subject_from,
+    torch_device,
+)
 
 EXAMPLES = """examples:
   torchik track --scenario walking --model human66 --rrd walk.rrd --report walk.json
@@ -41,10 +49,14 @@ def add_parser(subparsers) -> None:
                         help="a recording (.npz) or source file whose segments are the model's links")
     add_map_arguments(track)
     track.add_argument("--model", default="human66", choices=MODELS)
+    add_subject_argument(track)
     track.add_argument("--urdf", metavar="FILE", help="track with this URDF of --model instead, e.g. the model.urdf "
                        "`torchik diagnose` writes (--model still names the tracked links)")
     track.add_argument("--sensor-calibration", metavar="JSON", help="undo the sensor effects (offsets, biases, delays, "
                        "drift) in the calibration.json `torchik diagnose` wrote for this session, after --map")
+    track.add_argument("--position-targets", nargs="+", metavar="LINK",
+                       help="links with position targets besides the base (e.g. RightHand LeftHand RightFoot LeftFoot): "
+                            "the recording's segment origins, as MVNX, BVH and C3D files give them")
     track.add_argument("--duration", type=float, default=10.0, help="scenario length in seconds (default 10)")
     track.add_argument("--rate", type=float, default=100.0, help="scenario rate in Hz (default 100)")
     track.add_argument("--seed", type=int, default=0)
@@ -70,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from ..io import map_recording, read, recording_targets, save_trajectory, write_json
+    from ..io.maps import default_map
     from ..method.models import TRACKED_LINKS, load_model
     from ..pipelines.track import track_recording
     from ..synthetic.scenarios import scenario
@@ -84,19 +97,23 @@ def run(args: argparse.Namespace) -> int:
         # one subject's tensors are too small for torch to split, and on a busy machine its idle
         # threads spin and wait for each other: a step then takes several times longer
         torch.set_num_threads(1)
+    if args.subject_from and (args.urdf or args.model == "icub"):
+        raise InputError("--subject-from builds a human model: give it with --model human66 or human48, without --urdf")
+    subject = subject_from(args.subject_from, args.map, say=(lambda _: None) if args.quiet else print)
     if args.urdf:  # e.g. the augmented model a diagnosis wrote
         from ..pipelines.diagnosis.calibration import load_urdf_model
 
         model = load_urdf_model(args.urdf, args.model, device)
     else:
-        model = load_model(args.model, device=device)
+        model = load_model(args.model, subject, device=device)
     links = TRACKED_LINKS[args.model]
     if args.input:
         recording = read(args.input)
         source = args.input
-        if args.map:
+        map_name = args.map or default_map(recording.links, model)
+        if map_name:
             static = read(args.calibration) if args.calibration else None
-            recording, link_map = map_recording(recording, args.map, model, static, args.calibration_frame)
+            recording, link_map = map_recording(recording, map_name, model, static, args.calibration_frame)
             links = recording.links
             source += f" through map {link_map.name!r}"
     elif args.map or args.calibration:
@@ -114,7 +131,11 @@ def run(args: argparse.Namespace) -> int:
                                orientation_gain=args.gain if args.orientation_gain is None else args.orientation_gain,
                                scheme=args.scheme, backend=args.backend)
     start = time.perf_counter()
-    trajectory, report = track_recording(model, recording, links, settings, progress=not args.quiet)
+    position_links = None
+    if args.position_targets:
+        position_links = (model.base_link, *[name for name in args.position_targets if name != model.base_link])
+    trajectory, report = track_recording(model, recording, links, settings, progress=not args.quiet,
+                                         position_links=position_links)
     report.update(source=source, device=str(device), wall_time_s=time.perf_counter() - start)
     if not args.quiet:
         _print_report(report, source, model.name)
@@ -131,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
 
         start = time.perf_counter()
         targets = recording_targets(recording, links, dtype=model.dtype, device=model.device)
-        log_trajectory(args.rrd, model, links, trajectory, targets, urdf=args.urdf or model_urdf(args.model),
+        log_trajectory(args.rrd, model, links, trajectory, targets, urdf=args.urdf or model_urdf(args.model, subject),
                        progress=not args.quiet)
         if not args.quiet:
             print(f"wrote {args.rrd} in {time.perf_counter() - start:.1f} s; open it with: rerun {args.rrd}")

@@ -13,6 +13,7 @@ One `.npz` file (NumPy, no pickles):
 | `base_linear_velocity` | float64 [T,3] | m/s, world |
 | `joint_names` | str [dof] | optional, with `joint_positions` |
 | `joint_positions` | float64 [T,dof] | optional ground truth (synthetic data) |
+| `position` | float64 [T,n,3] | optional: each segment's origin (its proximal joint), m, world; NaN where missing |
 | `meta` | str | JSON: source file, subject, units, frame rate, calibration frames, ... |
 
 A frame that a source could not measure (an occluded marker, a dropped packet) holds NaN for the
@@ -50,6 +51,7 @@ class Recording:
     joint_names: tuple[str, ...] | None = None
     joint_positions: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
+    position: np.ndarray | None = None  # [T,n,3] each segment's origin, m, world (position targets off the base)
 
     def __post_init__(self):
         self.links = tuple(self.links)
@@ -119,6 +121,8 @@ def validate(rec: Recording, where: str = "recording") -> None:
         if rec.joint_positions.dtype != np.float64 or rec.joint_positions.shape != (T, len(rec.joint_names)):
             fail(f"joint_positions must be float64 [{T},{len(rec.joint_names)}], got "
                  f"{rec.joint_positions.dtype} {list(rec.joint_positions.shape)}")
+    if rec.position is not None and (rec.position.dtype != np.float64 or rec.position.shape != (T, n, 3)):
+        fail(f"position must be float64 [{T},{n},3], got {rec.position.dtype} {list(rec.position.shape)}")
     try:
         json.dumps(rec.meta)
     except TypeError as exc:
@@ -134,6 +138,8 @@ def save_recording(rec: Recording, path: str | Path) -> Path:
                   meta=np.array(json.dumps(rec.meta), dtype=str))
     if rec.joint_positions is not None:
         arrays.update(joint_names=np.array(rec.joint_names, dtype=str), joint_positions=rec.joint_positions)
+    if rec.position is not None:
+        arrays.update(position=rec.position)
     with open(path, "wb") as f:  # a file object: np.savez would append .npz to other suffixes
         np.savez(f, **arrays)
     return path
@@ -166,7 +172,7 @@ def load_recording(path: str | Path) -> Recording:
             base_link=str(contents["base_link"]), base_position=contents["base_position"],
             base_linear_velocity=contents["base_linear_velocity"],
             joint_names=tuple(str(x) for x in contents["joint_names"]) if "joint_names" in contents else None,
-            joint_positions=contents.get("joint_positions"), meta=meta)
+            joint_positions=contents.get("joint_positions"), meta=meta, position=contents.get("position"))
     except RecordingError as exc:
         raise RecordingError(f"{path}: {str(exc).removeprefix('recording: ')}") from None
 

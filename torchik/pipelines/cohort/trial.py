@@ -99,7 +99,7 @@ def prepare(spec: TrialSpec, fingerprint: str = "") -> Prepared:
     would, and build its targets. Raises what the readers and the map raise."""
     from ...io import read
 
-    model = subject_model(spec.model, spec.height, spec.mass, spec.segments)
+    model = subject_model(spec.model, spec.height, spec.mass, spec.segments, spec.subject_from)
     recording = read(spec.recording)
     if spec.map:
         recording = mapped(recording, spec, model)
@@ -120,12 +120,13 @@ def mapped(recording: Recording, spec: TrialSpec, model: KinematicModel) -> Reco
 
 
 @functools.lru_cache(maxsize=64)
-def subject_model(name: str, height: float | None, mass: float | None, segments: tuple) -> KinematicModel:
+def subject_model(name: str, height: float | None, mass: float | None, segments: tuple,
+                  subject_from: str | None = None) -> KinematicModel:
     """The model of a trial (a built-in name, for a subject's anthropometry, or a URDF file), kept
     per worker: a subject's trials share one compiled model."""
     if name.endswith(".urdf"):
         return KinematicModel.from_urdf(name)
-    return load_model(name, human_subject(height, mass, segments))
+    return load_model(name, human_subject(height, mass, segments, subject_from))
 
 
 def compatible_groups(prepared: list[Prepared]) -> list[list[Prepared]]:
