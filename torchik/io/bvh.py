@@ -18,6 +18,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -131,7 +132,7 @@ def _parse(path: Path) -> tuple[list[_Joint], np.ndarray, float]:
         raise RecordingError(f"{path}: no ROOT joint; is this a BVH file?")
     if stack:
         raise RecordingError(f"{path}: the hierarchy ends with {len(stack)} unclosed joint(s)")
-    header = {}
+    header: dict[str, Any] = {}  # frames (int), dt (float)
     while k < len(lines) and len(header) < 2:
         text = lines[k].strip()
         k += 1
@@ -155,8 +156,8 @@ def _parse(path: Path) -> tuple[list[_Joint], np.ndarray, float]:
     try:
         motion = np.array(rows[: header["frames"]], dtype=np.float64)
     except ValueError:
-        bad = next(i for i, row in enumerate(rows) if not all(_is_number(v) for v in row))
-        raise RecordingError(f"{path}: frame {bad}: values that are not numbers: {rows[bad][:6]}") from None
+        frame = next(i for i, row in enumerate(rows) if not all(_is_number(v) for v in row))
+        raise RecordingError(f"{path}: frame {frame}: values that are not numbers: {rows[frame][:6]}") from None
     if header["dt"] <= 0:
         raise RecordingError(f"{path}: Frame Time must be positive, got {header['dt']}")
     return joints, motion, header["dt"]

@@ -234,6 +234,8 @@ def calibrate(link_map: LinkMap, recording: Recording, model: KinematicModel, fr
     frame = link_map.calibration_frame if frame is None else frame
     ids = [index[e.segment] for e in link_map.entries]
     p0, R0, _ = model.zero_configuration(1)
+    if link_map.reference_pose is None:
+        raise RecordingError(f"map {link_map.name!r} calibrates offsets but names no calibration.reference_pose")
     kin = model(p0, R0, reference_configuration(model, link_map.reference_pose), link_map.links, jacobian=False)
     heading = np.eye(3)
     if frame == "rest":
@@ -244,7 +246,8 @@ def calibrate(link_map: LinkMap, recording: Recording, model: KinematicModel, fr
         R_source = np.asarray(rest["orientation"])[ids]
         up, left = np.asarray(rest["up"]), np.asarray(rest["left"])
         heading = np.stack((np.cross(left, up), left, up), axis=1)  # columns: forward, left, up
-        k, time_s = "rest", None
+        k: int | str = "rest"
+        time_s = None
     else:
         k = int(frame)
         if not 0 <= k < len(recording.time):
@@ -260,7 +263,7 @@ def calibrate(link_map: LinkMap, recording: Recording, model: KinematicModel, fr
     entries = list(link_map.entries)
     for i in todo:
         e = entries[i]
-        entries[i] = LinkEntry(e.link, e.segment, R_source[i].T @ R_reference[i])
+        entries[i] = replace(e, offset=R_source[i].T @ R_reference[i])  # keeps alternatives and optional
     calibrated = dict(frame=k, time_s=time_s, reference_pose=link_map.reference_pose,
                       recording=recording.meta.get("source"))
     return replace(link_map, entries=tuple(entries), calibration=calibrated)
@@ -282,7 +285,7 @@ def apply_map(recording: Recording, link_map: LinkMap, model: KinematicModel | N
             raise RecordingError(f"map {link_map.name!r} calibrates offsets: give the model (or calibrate() first)")
         link_map = calibrate(link_map, recording, model, calibration_frame)
     ids = [index[e.segment] for e in link_map.entries]
-    offsets = np.stack([e.offset for e in link_map.entries])
+    offsets = np.stack([_given(e.offset) for e in link_map.entries])
     R = recording.orientation[:, ids] @ offsets
     known = ~np.isnan(R).any(axis=(-1, -2))
     if known.any():
@@ -307,3 +310,9 @@ def map_recording(recording: Recording, map_name: str | Path, model: KinematicMo
     if static is not None:
         link_map = calibrate(link_map, static, model, calibration_frame)
     return apply_map(recording, link_map, model, calibration_frame), link_map
+
+
+def _given(offset: np.ndarray | None) -> np.ndarray:
+    """An offset that calibration has filled in."""
+    assert offset is not None
+    return offset

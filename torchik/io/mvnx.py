@@ -58,7 +58,8 @@ def read_mvnx(path: str | Path, base_link: str = "Pelvis") -> Recording:
         raise RecordingError(f"{path}: no such file")
     segments: list[str] = []
     frame_rate, version, subject = None, None, {}
-    times, data = [], {name: [] for name in FIELDS}
+    times: list[float] = []
+    data: dict[str, list] = {name: [] for name in FIELDS}
     calibration = {}
     points: dict[str, dict[str, list[float]]] = {}
     try:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -79,7 +80,7 @@ def validate(rec: Recording, where: str = "recording") -> None:
     def fail(message: str):
         raise RecordingError(f"{where}: {message}")
 
-    arrays = dict(time=rec.time, orientation=rec.orientation, angular_velocity=rec.angular_velocity,
+    arrays: dict[str, Any] = dict(time=rec.time, orientation=rec.orientation, angular_velocity=rec.angular_velocity,
                   base_position=rec.base_position, base_linear_velocity=rec.base_linear_velocity)
     for name, a in arrays.items():
         if not isinstance(a, np.ndarray) or a.dtype != np.float64:
@@ -117,7 +118,7 @@ def validate(rec: Recording, where: str = "recording") -> None:
                  f"{error[int(np.argmax(bad))]:.2g}, det = {det[int(np.argmax(bad))]:.3g})")
     if (rec.joint_names is None) != (rec.joint_positions is None):
         fail("joint_names and joint_positions come together")
-    if rec.joint_positions is not None:
+    if rec.joint_positions is not None and rec.joint_names is not None:
         if rec.joint_positions.dtype != np.float64 or rec.joint_positions.shape != (T, len(rec.joint_names)):
             fail(f"joint_positions must be float64 [{T},{len(rec.joint_names)}], got "
                  f"{rec.joint_positions.dtype} {list(rec.joint_positions.shape)}")
@@ -132,7 +133,7 @@ def validate(rec: Recording, where: str = "recording") -> None:
 def save_recording(rec: Recording, path: str | Path) -> Path:
     """Write a recording as `.npz` (no pickles). Returns the path."""
     path = Path(path)
-    arrays = dict(time=rec.time, links=np.array(rec.links, dtype=str), orientation=rec.orientation,
+    arrays: dict[str, Any] = dict(time=rec.time, links=np.array(rec.links, dtype=str), orientation=rec.orientation,
                   angular_velocity=rec.angular_velocity, base_link=np.array(rec.base_link, dtype=str),
                   base_position=rec.base_position, base_linear_velocity=rec.base_linear_velocity,
                   meta=np.array(json.dumps(rec.meta), dtype=str))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import torch
 
@@ -30,7 +32,7 @@ def recording_targets(recording: Recording, orientation_links, position_links=No
         raise InputError(f"no position targets for {unknown}: the recording has no such links; "
                          f"it has {list(recording.links)}")
     ids = [index[name] for name in orientation_links]
-    kw = dict(dtype=dtype, device=device)
+    kw: dict[str, Any] = dict(dtype=dtype, device=device)
     as_tensor = lambda a: torch.as_tensor(np.ascontiguousarray(a), **kw)  # noqa: E731
     position, velocity = _positions(recording, [index[name] for name in position_links])
     return TargetSequence(

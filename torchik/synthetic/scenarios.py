@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -108,7 +109,7 @@ def scenario_motion(name: str, model: KinematicModel, duration: float = 10.0, ra
     gait = SCENARIOS[name]
     rng = np.random.default_rng(seed)
     centre, a1, a2, phase = (torch.from_numpy(x) for x in _joint_patterns(model, gait, rng))
-    kw = dict(dtype=torch.float64)
+    kw: dict[str, Any] = dict(dtype=torch.float64)
     t = torch.arange(int(round(duration * rate)) + 1, **kw) / rate
     w = 2 * math.pi * gait.frequency
     arg = w * t[:, None] + phase  # [T,n]
@@ -120,7 +121,9 @@ def scenario_motion(name: str, model: KinematicModel, duration: float = 10.0, ra
             break
         a1, a2 = 0.8 * a1, 0.8 * a2
     s_dot = a1 * w * torch.cos(arg) + 2 * a2 * w * torch.cos(2 * arg)
-    height = float(-model(*model.zero_configuration(1), model.link_names, jacobian=False).position[0, :, 2].min())
+    rest = model(*model.zero_configuration(1), model.link_names, jacobian=False).position
+    assert rest is not None  # forward gives positions
+    height = float(-rest[0, :, 2].min())
     p = torch.stack((gait.speed * t, gait.sway * torch.sin(w * t), height + gait.bob * torch.sin(2 * w * t)), -1)
     p_dot = torch.stack((torch.full_like(t, gait.speed), gait.sway * w * torch.cos(w * t),
                          2 * gait.bob * w * torch.cos(2 * w * t)), -1)

@@ -230,7 +230,7 @@ def human_urdf(dof: int = 66, subject: HumanSubject | None = None) -> str:
         joints.append(text + "  </joint>")
 
     for seg in TEMPLATE:
-        if seg.parent is None:
+        if seg.parent is None or seg.joint is None:  # the root
             link(seg.name, seg)
             continue
         if dof == 66:

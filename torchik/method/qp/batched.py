@@ -34,6 +34,8 @@ dozen shared quantities would travel through every call.
 
 from __future__ import annotations
 
+import functools
+
 import torch
 
 from .base import QPBackend, QPProblem, QPSolution, clipped_fallback
@@ -143,7 +145,7 @@ class BatchedBackend(QPBackend):
         live, sub_H, sub = None, H, problem
         iteration = 0
         for iteration in range(1, budget + 1):  # noqa: B007  (the count is returned)
-            pick = (lambda t: t) if live is None else (lambda t, live=live: None if t is None else t.index_select(0, live))
+            pick = _identity if live is None else functools.partial(_select, live)
             u, l, r = pick(upper), pick(lower), pick(rows)
             x_new, eta_new, nu_new, r, degenerate = self._solve_on(sub_H, sub.g, sub.lb, sub.ub, sub.G, sub.h, u, l, r)
             new_u, new_l, new_r, same = _next_active_set(sub, x_new, nu_new, eta_new, u, l, r, tolerance)
@@ -245,6 +247,15 @@ def _next_active_set(problem: QPProblem, x, nu, eta, upper, lower, rows, toleran
     return new_upper, new_lower, new_rows, same
 
 
+def _identity(t):
+    return t
+
+
+def _select(rows: torch.Tensor, t: torch.Tensor | None) -> torch.Tensor | None:
+    """t's batch rows `rows` (None stays None)."""
+    return None if t is None else t.index_select(0, rows)
+
+
 DENSE_BELOW = 32  # gathered batches smaller than this are solved densely: the tree's level-by-level
                  # elimination costs a fixed time per level, a dense Cholesky of a few matrices less
 
@@ -252,12 +263,12 @@ DENSE_BELOW = 32  # gathered batches smaller than this are solved densely: the t
 def _take(H, problem: QPProblem, rows: torch.Tensor):
     """The Hessian operator and problem of the subjects `rows` [k]."""
     pick = lambda t: None if t is None else t.index_select(0, rows)  # noqa: E731
+    sub_H: DenseHessian | TreeHessian
     if isinstance(H, DenseHessian):
         sub_H = DenseHessian(pick(H.H))
     else:
-        sub_H = TreeHessian(H.tree, pick(H.axes), pick(H.node_weight), pick(H.position_weight), H.damping)
-        if len(rows) < DENSE_BELOW:
-            sub_H = DenseHessian(sub_H.dense())
+        sub_tree = TreeHessian(H.tree, pick(H.axes), pick(H.node_weight), pick(H.position_weight), H.damping)
+        sub_H = DenseHessian(sub_tree.dense()) if len(rows) < DENSE_BELOW else sub_tree
     tree = sub_H if isinstance(sub_H, TreeHessian) else None
     dense = sub_H.H if isinstance(sub_H, DenseHessian) else None
     sub = QPProblem(dense, pick(problem.g), pick(problem.lb), pick(problem.ub), pick(problem.G), pick(problem.h), tree)

@@ -22,6 +22,7 @@ factorisation per active set serves every right-hand side.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 
@@ -51,7 +52,7 @@ class JointTree:
         for j in sorted(range(n), key=lambda j: -_depth(parents, j, n)):  # build time only
             if parents[j] < n:
                 height[parents[j]] = max(height[parents[j]], height[j] + 1)
-        long = dict(dtype=torch.long, device=model.device)
+        long: dict[str, Any] = dict(dtype=torch.long, device=model.device)
         levels = []
         for h in range(max(height) + 1 if n else 0):
             members = [j for j in range(n) if height[j] == h]
