@@ -121,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
                               kinds=args.kinds, log=lambda line: say("    " + line))
     finally:
         torch.set_num_threads(threads)
-    paths = write(diagnosis, out, args.recording, model.name, rrd=not args.no_rrd)
+    paths = write(diagnosis, out, args.recording, model.name or Path(model.source).stem, rrd=not args.no_rrd)
     if not args.quiet:
         before, after = diagnosis.before.overall, diagnosis.after.overall
         print(f"diagnosed {args.recording} with {model.name} ({len(links)} links) in {time.perf_counter() - start:.0f} s: "

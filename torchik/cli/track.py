@@ -138,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
                                          position_links=position_links)
     report.update(source=source, device=str(device), wall_time_s=time.perf_counter() - start)
     if not args.quiet:
-        _print_report(report, source, model.name)
+        _print_report(report, source, model.name or Path(model.source).stem)
     if args.report:
         write_json(report, args.report)
         if not args.quiet:

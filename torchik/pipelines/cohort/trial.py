@@ -29,10 +29,12 @@ import uuid
 import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
+from ...errors import InputError
 from ...io.maps import map_recording
 from ...io.recording import Recording
 from ...io.targets import recording_targets
@@ -115,6 +117,8 @@ def mapped(recording: Recording, spec: TrialSpec, model: KinematicModel) -> Reco
     spec's static trial when it names one (else on the recording, for a map that calibrates)."""
     from ...io import read
 
+    if spec.map is None:
+        raise InputError(f"trial {spec.trial!r}: no map to apply")
     static = read(spec.calibration) if spec.calibration else None
     return map_recording(recording, spec.map, model, static, spec.calibration_frame)[0]
 
@@ -229,7 +233,7 @@ def trial_row(p: Prepared, trajectory: Trajectory) -> dict:
     the statistics `torchik track` reports, after the spec's transient, over the frames whose
     targets are all known; status 'failed' with the reason when the trial diverged."""
     t, d, spec = trajectory.time, trajectory.diagnostics, p.spec
-    row = dict(trial=spec.trial, subject=spec.subject, model=spec.model, status="ok", error=None,
+    row: dict[str, Any] = dict(trial=spec.trial, subject=spec.subject, model=spec.model, status="ok", error=None,
                frames=len(t), duration_s=float(t[-1] - t[0]), rate_hz=1.0 / p.dt,
                qp_fallbacks=int((~d["solved"]).sum()), dropped_targets=int(d["dropped"].sum()),
                step_time_ms=summary(d["step_time"], t, 0.0)["median"] * 1e3)

@@ -254,9 +254,11 @@ def _task_jacobian(model: KinematicModel, trajectory: Trajectory, links, sample:
     with torch.inference_mode():
         kin = model(pick(trajectory.base_position), pick(trajectory.base_rotation), pick(trajectory.joint_positions),
                     names, jacobian=True, joint_axes=True)
+        assert kin.jacobian is not None  # asked for
         J = torch.cat((kin.jacobian[:, 0, :3], kin.jacobian[:, 1:, 3:].flatten(1, 2)), dim=1)
-    S = len(sample)
-    return J.reshape(S, B, *J.shape[1:]).clone(), kin.joint_axes.reshape(S, B, *kin.joint_axes.shape[1:]).clone()
+    S, axes = len(sample), kin.joint_axes
+    assert axes is not None  # asked for
+    return J.reshape(S, B, *J.shape[1:]).clone(), axes.reshape(S, B, *axes.shape[1:]).clone()
 
 
 # ------------------------------------------------------------------------------ structure
@@ -267,9 +269,9 @@ def autocorrelation_time(x: torch.Tensor, axis: int = 0) -> float:
     if T < 4:
         return 1.0
     # in numpy: the scores call this on every candidate's short series, where torch's per-call cost dominates
-    x = x.movedim(axis, 0).reshape(T, -1).double().numpy()
-    x = x - x.mean(0)
-    f = np.fft.rfft(x, n=2 * T, axis=0)
+    series = x.movedim(axis, 0).reshape(T, -1).double().numpy()
+    series = series - series.mean(0)
+    f = np.fft.rfft(series, n=2 * T, axis=0)
     acf = np.fft.irfft((f.real ** 2 + f.imag ** 2).sum(-1), n=2 * T)[:T]  # summed over the other dims
     if acf[0] <= 0:
         return 1.0

@@ -144,8 +144,9 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
         out.append(_delay(name, w_low, e, tr, te, time, max_delay))
         rates.append((name, w_low, e, tr, te))
     if len(rates) > 1 and target in (None, "all"):
-        names, w_low, e, tr, te = zip(*rates)
-        common = _delay("all", torch.cat(w_low, -1), torch.cat(e, -1), torch.stack(tr).all(0), torch.stack(te).all(0),
+        names = [name for name, *_ in rates]
+        common = _delay("all", torch.cat([r[1] for r in rates], -1), torch.cat([r[2] for r in rates], -1),
+                        torch.stack([r[3] for r in rates]).all(0), torch.stack([r[4] for r in rates]).all(0),
                         time, max_delay)
         common.params["links"] = list(names)
         out.append(common)

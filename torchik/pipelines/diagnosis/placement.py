@@ -18,6 +18,7 @@ about a link's own joint axes is a joint offset to the data, and is reported as 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -200,7 +201,7 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
     misalignments = fit_linear(analysis, b, usable, R_hat, tr, te)
     delays = fit_linear(analysis, b, usable, -w_hat[..., None], tr, te)
     drifts = _drift(analysis, b, usable, tr, te, derived)
-    out = []
+    out: list[Effect] = []
     for i, mis, delay, head in zip(usable, misalignments, delays, drifts):
         name = analysis.links[i]
         if not mis.identified.shape[1]:
@@ -239,7 +240,7 @@ def _drift(analysis: Analysis, b: int, usable: list[int], tr: torch.Tensor, te: 
         extra.append((torch.tensor([[float(tr[n].sum())]], dtype=time.dtype), -y_tr.sum()[None],
                       max(float(y_tr.var(unbiased=False)), 1e-12), y_te[:, None],  # noise about the constant fitted
                       lambda theta, m=len(y_te): -theta[0].expand(m)[:, None]))  # noqa: B008  (m bound per gyro)
-    fits = {}
+    fits: dict[int, Any] = {}
     for group, channel in ((gyro, extra), (none, None)):
         if group:
             found = fit_linear(analysis, b, [usable[n] for n in group], drift.expand(len(group), -1, -1, -1),
