@@ -11,10 +11,10 @@ import argparse
 import sys
 
 from ..errors import TorchikError
-from . import bench, cohort, diagnose, experiment, models, recordings, retarget, track
+from . import bench, cohort, diagnose, experiment, live, models, recordings, replay, retarget, track
 from .common import Parser
 
-COMMANDS = (track, models, recordings, bench, experiment, retarget, cohort, diagnose)  # in --help's order
+COMMANDS = (track, models, recordings, bench, experiment, retarget, cohort, diagnose, live, replay)  # in --help's order
 
 
 def build_parser() -> Parser:

@@ -114,19 +114,6 @@ def parse_url(text: str, listening: bool = True) -> Url:
     return Url(parts.scheme, host, port)
 
 
-def open_source(text: str, rate: float | None = None, timeout: float = 5.0) -> Source:
-    """The source a URL names (udp, tcp: an MVN stream; lsl: a Mocap stream), `rate` its frame
-    rate when known (else the source finds it). timeout: how long an LSL stream is looked for."""
-    url = parse_url(text)
-    if url.scheme == "lsl":
-        from .lsl import LslSource
-
-        return LslSource(url, rate, timeout)
-    from .mvn import MvnSource
-
-    return MvnSource(url, rate)
-
-
 def snap_rate(estimate: float) -> float:
     """A frame rate estimated from millisecond time codes, snapped to the capture rate it rounds
     (MVN captures at 60, 100, 120 or 240 Hz; others within 3 % of these are kept as estimated)."""

@@ -201,23 +201,30 @@ def _summary(values: np.ndarray) -> dict[str, float]:
 class Publisher:
     """Where each step's estimates go as they are made: one LSL outlet per character."""
 
-    def __init__(self, name: str, model: KinematicModel, rate: float, base: bool = False, velocities: bool = False):
-        self.name, self.model, self.rate, self.base, self.velocities = name, model, rate, base, velocities
+    def __init__(self, name: str, model: KinematicModel, base: bool = False, velocities: bool = False,
+                 rate: float | None = None):
+        self.name, self.model, self.base, self.velocities = name, model, base, velocities
+        self.rate = rate  # the stream's, set by the live loop when it knows it
         self.outlets: dict = {}
 
-    def publish(self, character: int, state: State, row: int, stamp: float) -> None:
+    def outlet(self, character: int):
+        """The character's outlet (NAME for character 0, NAME-c for others), opened on first use:
+        open one ahead to let a recorder connect before the first estimate."""
         from ..live.lsl import JointOutlet
 
         if character not in self.outlets:
             self.outlets[character] = JointOutlet(f"{self.name}-{character}" if character else self.name,
-                                                  self.model.joint_names, self.rate, character, self.base,
+                                                  self.model.joint_names, self.rate or 0.0, character, self.base,
                                                   self.velocities)
+        return self.outlets[character]
+
+    def publish(self, character: int, state: State, row: int, stamp: float) -> None:
         parts = [state.joint_positions[row]]
         if self.base:
             parts += [state.base_position[row], _quaternion(state.base_rotation[row])]
         if self.velocities:
             parts.append(state.velocity[row, 6:])
-        self.outlets[character].push(torch.cat(parts).numpy(), stamp)
+        self.outlet(character).push(torch.cat(parts).numpy(), stamp)
 
 
 def _quaternion(R: torch.Tensor) -> torch.Tensor:
@@ -251,7 +258,8 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
             loop.check_stalls(now, options.stall_s)
             if options.duration_s is not None and now - start >= options.duration_s:
                 break
-            if options.stop_when_idle_s is not None and loop.last_arrival and now - loop.last_arrival >= options.stop_when_idle_s:
+            idle = now - loop.last_arrival if loop.last_arrival else 0.0
+            if options.stop_when_idle_s is not None and idle >= options.stop_when_idle_s:
                 break
             if progress is not None and now - last_progress >= 1.0:
                 last_progress = now
@@ -300,6 +308,7 @@ class _Loop:
             if self.publisher is not None:
                 from ..live.lsl import pylsl
 
+                self.publisher.rate = self.publisher.rate or rate
                 self.clock_offset = pylsl().local_clock() - time.perf_counter()
         joining = [c for c in got if c not in self.active]
         samples = [got.get(c) for c in self.active] + [got[c] for c in joining]

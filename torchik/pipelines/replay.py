@@ -171,10 +171,11 @@ class _LslSender:
 
 
 def replay(recording: Recording, to: Url, speed: float = 1.0, characters: int = 1, faults: Faults | None = None,
-           max_bytes: int = 1472, stop=None, on_frame=None) -> ReplayLog:
+           max_bytes: int = 1472, stop=None, on_frame=None, lead_in_s: float = 0.0) -> ReplayLog:
     """Play `recording` (links: Xsens segment names for MVN) to `to`. speed: times real time (inf:
     as fast as the socket takes it); characters: that many, character c offset by c/characters of
-    the recording; stop: a threading.Event that ends it early; on_frame(k): called after each frame."""
+    the recording; stop: a threading.Event that ends it early; on_frame(k): called after each frame;
+    lead_in_s: a wait between opening the stream and its first frame (for LSL receivers to connect)."""
     faults = faults or Faults()
     faults.check(to)
     if not speed > 0:
@@ -187,6 +188,7 @@ def replay(recording: Recording, to: Url, speed: float = 1.0, characters: int = 
     log = ReplayLog()
     held: dict[int, list] = {}  # a reordered frame's datagrams, per character, sent after the next frame
     period = 1.0 / (frames.rate * speed) if math.isfinite(speed) else 0.0
+    time.sleep(lead_in_s)
     start = time.perf_counter()
     try:
         for k in range(T):
