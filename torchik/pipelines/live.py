@@ -42,6 +42,7 @@ class Mailbox:
         self.backlog = backlog
         self.queues: dict[int, deque] = {}
         self.skipped: dict[int, int] = {}
+        self.last_put: dict[int, float] = {}  # per character, when its newest sample came in
         self.condition = threading.Condition()
         self.finished = False  # the source ended
 
@@ -52,6 +53,7 @@ class Mailbox:
                 queue.popleft()
                 self.skipped[sample.character] = self.skipped.get(sample.character, 0) + 1
             queue.append(sample)
+            self.last_put[sample.character] = time.perf_counter()
             self.condition.notify()
 
     def finish(self) -> None:
@@ -155,7 +157,6 @@ class _Track:
     dropped: list = field(default_factory=list)
     targets: list = field(default_factory=list)
     last_frame: int | None = None
-    last_arrival: float = 0.0
 
     def trajectory(self, interrupted: bool) -> Trajectory:
         stack = lambda name: torch.stack([getattr(s, name) for s in self.states])[:, None]  # noqa: E731
@@ -255,10 +256,10 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
                 loop.step(got, source.rate)
             elif mailbox.finished:
                 break
-            loop.check_stalls(now, options.stall_s)
+            loop.check_stalls(now, options.stall_s, mailbox)
             if options.duration_s is not None and now - start >= options.duration_s:
                 break
-            idle = now - loop.last_arrival if loop.last_arrival else 0.0
+            idle = now - max(mailbox.last_put.values()) if mailbox.last_put and not got else 0.0
             if options.stop_when_idle_s is not None and idle >= options.stop_when_idle_s:
                 break
             if progress is not None and now - last_progress >= 1.0:
@@ -294,7 +295,6 @@ class _Loop:
         self.events: list[str] = []
         self.latency: list[float] = []
         self.step_time: list[float] = []
-        self.last_arrival = 0.0
         self.rate = float("nan")
         self.clock_offset = 0.0
 
@@ -323,8 +323,7 @@ class _Loop:
             if sample is None:
                 continue
             track = self.tracks[c]
-            track.last_frame, track.last_arrival = sample.frame, sample.arrival
-            self.last_arrival = max(self.last_arrival, sample.arrival)
+            track.last_frame = sample.frame
             if self.publisher is not None:
                 stamp = sample.time if self.lsl_clock else sample.arrival + self.clock_offset
                 self.publisher.publish(c, state, row, stamp)
@@ -360,8 +359,9 @@ class _Loop:
             self.tracks.setdefault(c, _Track()).last_frame = None
         self.active += joining
 
-    def check_stalls(self, now: float, stall_s: float) -> None:
-        stalled = [c for c in self.active if now - self.tracks[c].last_arrival > stall_s]
+    def check_stalls(self, now: float, stall_s: float, mailbox: Mailbox) -> None:
+        """Characters silent for stall_s (nothing received, nothing left queued) leave the batch."""
+        stalled = [c for c in self.active if now - mailbox.last_put[c] > stall_s and not mailbox.queues[c]]
         if not stalled or self.tracker is None:
             return
         keep = [row for row, c in enumerate(self.active) if c not in stalled]
