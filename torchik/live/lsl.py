@@ -70,7 +70,11 @@ class LslSource:
     def __init__(self, url: Url, rate: float | None = None, timeout: float = 5.0):
         lsl = pylsl()
         prop, value = ("name", url.name) if url.name else ("source_id", url.source_id)
-        infos = [i for i in lsl.resolve_byprop(prop, value, 0, timeout) if i.type().lower() == "mocap"]
+        # minimum 1: return as soon as one appears (minimum 0 waits the whole timeout); a second,
+        # short look collects the other characters' streams, which open together
+        first = lsl.resolve_byprop(prop, value, 1, timeout)
+        found = {i.uid(): i for i in first + (lsl.resolve_byprop(prop, value, 0, 0.3) if first else [])}
+        infos = [i for i in found.values() if i.type().lower() == "mocap"]
         if not infos:
             seen = sorted({f"{i.name()} ({i.type()})" for i in lsl.resolve_streams(0.5)})
             raise InputError(f"no LSL Mocap stream with {prop} {value!r} appeared in {timeout:g} s; "
@@ -78,7 +82,10 @@ class LslSource:
         infos.sort(key=lambda i: i.source_id())
         self.inlets = [lsl.StreamInlet(i, max_buflen=2, processing_flags=lsl.proc_clocksync | lsl.proc_dejitter)
                        for i in infos]
-        full = [inlet.info() for inlet in self.inlets]
+        try:
+            full = [inlet.info(timeout) for inlet in self.inlets]
+        except lsl.TimeoutError as exc:  # the stream closed between resolving and connecting
+            raise InputError(f"LSL stream {value!r} went away before it could be read") from exc
         self.links, self.base = [], []
         for info in full:
             labels = _labels(info)
@@ -94,6 +101,7 @@ class LslSource:
             raise InputError(f"LSL stream {infos[0].name()!r} has an irregular rate; give --rate")
         self.stats = SourceStats()
         self._start: list[float | None] = [None] * len(self.inlets)
+        self._frame: list[int] = [-1] * len(self.inlets)
         self._closed = False
 
     def close(self) -> None:
@@ -116,9 +124,12 @@ class LslSource:
         links = self.links[character]
         n = len(links)
         per = values[:7 * n].reshape(n, 7)
-        if self._start[character] is None:
-            self._start[character] = stamp
-        frame = int(round((stamp - self._start[character]) * self.rate))
+        start = self._start[character]
+        if start is None:
+            start = self._start[character] = stamp
+        # time stamps jitter: a frame is at least the one after the previous (a gap: lost samples)
+        frame = max(int(round((stamp - start) * self.rate)), self._frame[character] + 1)
+        self._frame[character] = frame
         position = np.full((n, 3), np.nan)
         velocity = np.full((n, 3), np.nan)
         position[self.base[character]] = values[7 * n:7 * n + 3]
