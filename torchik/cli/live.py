@@ -81,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
 
         pylsl()  # missing pylsl: said before anything starts
     device = torch_device(args.device)
+    source = open_source(args.source, args.rate, args.timeout)  # bad URLs, busy ports, unknown streams: before any work
     if device.type == "cpu":
         torch.set_num_threads(1)  # small per-step tensors: extra threads only wait for each other
     model = load_model(args.model, device=device)
@@ -93,7 +94,6 @@ def run(args: argparse.Namespace) -> int:
 
             link_map = calibrate(link_map, read(args.calibration), model)
     links = TRACKED_LINKS[args.model]
-    source = open_source(args.source, args.rate, args.timeout)
     publisher = Publisher(args.to_lsl, model, args.lsl_base, args.lsl_velocity, source.rate) if args.to_lsl else None
     options = LiveOptions(backlog=args.backlog, stall_s=args.stall, duration_s=args.duration,
                           stop_when_idle_s=args.stop_when_idle)

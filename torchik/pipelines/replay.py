@@ -152,19 +152,25 @@ class _MvnSender:
 
 class _LslSender:
     def __init__(self, url: Url, frames: WireFrames, characters: int):
-        from ..live.lsl import MocapOutlet
+        from ..live.lsl import MocapOutlet, pylsl
 
         self.frames = frames
         self.outlets = [MocapOutlet(url.name or "torchik", frames.links, frames.base_link, frames.rate, c)
                         for c in range(characters)]
+        self.start = pylsl().local_clock()
+
 
     def datagrams(self, data: int, k: int, character: int) -> list:
-        return [(character, data)]
+        return [(character, data, k)]
 
     def send(self, item) -> None:
-        character, k = item
+        character, data, k = item
         f = self.frames
-        self.outlets[character].push(f.quaternion[k], f.angular_velocity[k], f.base_position[k], f.base_velocity[k])
+        # stamped with the frame counter's time, as a suit stamps its frames: the receiver's frame
+        # numbers (and so its dt) then come out the same at any --speed and under any jitter
+        stamp = self.start + f.counter[k] / f.rate
+        self.outlets[character].push(f.quaternion[data], f.angular_velocity[data], f.base_position[data],
+                                     f.base_velocity[data], stamp)
 
     def close(self) -> None:
         self.outlets = []
