@@ -10,9 +10,9 @@ import struct
 import numpy as np
 import pytest
 
+from torchik.errors import InputError
 from torchik.live.mvn import MVN_SEGMENTS, Assembler, parse_datagram
 from torchik.live.sample import parse_url
-from torchik.errors import InputError
 
 
 def header(message_type: bytes, sample_counter: int, datagram_counter: int, items: int, time_code: int,
@@ -35,7 +35,7 @@ def test_every_field_of_a_quaternion_pose_datagram_is_read_as_the_specification_
     data = header(b"02", 123456, 0x80 | 2, 3, 98765, 7, len(payload), 23, 1, 2) + payload
     d = parse_datagram(data)
     h = d.header
-    assert (h.message_type, h.sample_counter, h.index, h.last, h.items, h.time_code, h.character) == \
+    assert (h.message_type, h.sample_counter, h.part, h.last, h.items, h.time_code, h.character) == \
         ("02", 123456, 2, True, 3, 98765, 7)
     assert (h.body_segments, h.props, h.finger_segments, h.payload_size) == (23, 1, 2, 96)
     assert d.items["id"].tolist() == [1, 2, 3]
@@ -64,8 +64,8 @@ def frame(counter: int, character: int = 0, split: int = 23) -> list[bytes]:
     out = [header(b"21", counter, 0x80, 1, counter * 10, character, len(linear)) + linear]
     chunks = [list(range(1, 24))[i:i + split] for i in range(0, 23, split)]
     for index, ids in enumerate(chunks):
-        payload = b"".join(struct.pack(">i", i) + struct.pack(">4f", *quaternion(i + counter)) + struct.pack(">6f", 0.1 * i, 0, 0, 0, 0, 0)
-                           for i in ids)
+        payload = b"".join(struct.pack(">i", i) + struct.pack(">4f", *quaternion(i + counter))
+                           + struct.pack(">6f", 0.1 * i, 0, 0, 0, 0, 0) for i in ids)
         flag = 0x80 if index == len(chunks) - 1 else 0
         out.append(header(b"22", counter, index | flag, len(ids), counter * 10, character, len(payload)) + payload)
     return out

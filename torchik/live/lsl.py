@@ -96,9 +96,10 @@ class LslSource:
             base_link = info.desc().child_value("base_link") or links[0]
             self.links.append(links)
             self.base.append(links.index(base_link))
-        self.rate = rate or (infos[0].nominal_srate() or None)
-        if self.rate is None:
+        nominal = rate or infos[0].nominal_srate()
+        if not nominal:
             raise InputError(f"LSL stream {infos[0].name()!r} has an irregular rate; give --rate")
+        self.rate: float = nominal
         self.stats = SourceStats()
         self._start: list[float | None] = [None] * len(self.inlets)
         self._frame: list[int] = [-1] * len(self.inlets)

@@ -86,7 +86,8 @@ class Header(NamedTuple):
     payload_size: int
 
     @property
-    def index(self) -> int:
+    def part(self) -> int:
+        """The datagram's index within its frame's message."""
         return self.datagram_counter & ~LAST_DATAGRAM
 
     @property
@@ -124,10 +125,11 @@ def parse_datagram(data: bytes) -> Datagram:
     limit = header.body_segments + header.props + header.finger_segments
     if items.size and (int(items["id"].min()) < 1 or int(items["id"].max()) > limit):
         raise MalformedDatagram(f"segment IDs {int(items['id'].min())}..{int(items['id'].max())} outside 1..{limit}")
-    values = [items[name] for name in item.names[1:]]
+    names = item.names or ()
+    values = [items[name] for name in names[1:]]
     if not all(np.isfinite(v).all() for v in values):
         raise MalformedDatagram("non-finite values")
-    if "quaternion" in item.names and items.size:
+    if "quaternion" in names and items.size:
         norm = np.linalg.norm(items["quaternion"].astype(np.float64), axis=-1)
         if np.abs(norm - 1.0).max() > 1e-3:
             raise MalformedDatagram(f"quaternion of norm {norm[np.abs(norm - 1).argmax()]:.4g}")
@@ -141,7 +143,7 @@ def encode_datagrams(message_type: str, sample_counter: int, time_code: int, cha
     item = ITEMS[message_type]
     items = np.zeros(len(ids), item)
     items["id"] = ids
-    for name in item.names[1:]:
+    for name in (item.names or ())[1:]:
         items[name] = columns.get(name, 0.0)
     per_datagram = max(1, (max_bytes - HEADER.size) // item.itemsize)
     chunks = [items[i:i + per_datagram] for i in range(0, len(items), per_datagram)] or [items]
@@ -206,12 +208,12 @@ class Assembler:
             return []
         frame = c.pending.setdefault(counter, _Frame(h.time_code, h.body_segments))
         parts = frame.parts.setdefault(h.message_type, {})
-        if h.index in parts:
+        if h.part in parts:
             self.stats.duplicates += 1
             return []
-        parts[h.index] = datagram.items
+        parts[h.part] = datagram.items
         if h.last:
-            frame.last[h.message_type] = h.index
+            frame.last[h.message_type] = h.part
         c.types.add(h.message_type)
         if not c.settled and len(c.pending) > 1:
             c.settled = True
@@ -254,7 +256,7 @@ def _sample(character: int, counter: int, frame: _Frame, arrival: float) -> Samp
         body = items[items["id"] <= n]
         rows = body["id"] - 1
         for name in ("quaternion", "angular_velocity", "position", "velocity"):
-            if name in items.dtype.names:
+            if name in (items.dtype.names or ()):
                 column = np.full((n, 4 if name == "quaternion" else 3), np.nan)
                 column[rows] = body[name]
                 fields[name] = column

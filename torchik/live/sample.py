@@ -65,8 +65,11 @@ class SourceStats:
 
 
 class Source(Protocol):
-    stats: SourceStats
-    rate: float | None
+    @property
+    def stats(self) -> SourceStats: ...
+
+    @property
+    def rate(self) -> float | None: ...
 
     def __iter__(self) -> Iterator[Sample]: ...
 

@@ -99,10 +99,11 @@ class Selection:
         if missing:
             raise InputError(f"map {link_map.name!r} needs segments {missing} that the stream lacks; "
                              f"it has {list(source_links)}")
-        if any(e.offset is None for e in link_map.entries):
+        offsets = [e.offset for e in link_map.entries if e.offset is not None]
+        if len(offsets) < len(link_map.entries):
             raise InputError(f"map {link_map.name!r} calibrates its offsets: give --calibration STATIC_TRIAL")
         return cls(link_map.links, np.array([index[e.segment] for e in link_map.entries]),
-                   np.stack([e.offset for e in link_map.entries]), index[link_map.base_segment])
+                   np.stack(offsets), index[link_map.base_segment])
 
 
 def sample_targets(samples: list[Sample | None], selection: Selection, dtype=torch.float64) -> Targets:
@@ -253,6 +254,9 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
             got = mailbox.take(loop.active, timeout=0.05, gather=options.gather_s)
             now = time.perf_counter()
             if got:
+                # a source knows its rate before it yields its first sample (MVN estimates it from
+                # the first time codes, LSL reads the stream's nominal rate)
+                assert source.rate is not None
                 loop.step(got, source.rate)
             elif mailbox.finished:
                 break
@@ -312,6 +316,7 @@ class _Loop:
                 self.clock_offset = pylsl().local_clock() - time.perf_counter()
         joining = [c for c in got if c not in self.active]
         samples = [got.get(c) for c in self.active] + [got[c] for c in joining]
+        assert self.selection is not None  # built at the first sample, above
         targets = sample_targets(samples, self.selection)
         if joining:
             self._join(joining, targets)
@@ -339,8 +344,8 @@ class _Loop:
     def _time_steps(self, got: dict[int, Sample]):
         """None (the nominal dt) when every character moved on by one frame, else dt [B] from the
         frame counters (a character without a sample: the nominal dt; it stands still)."""
-        gaps = [got[c].frame - self.tracks[c].last_frame if c in got and self.tracks[c].last_frame is not None else 1
-                for c in self.active]
+        last = {c: self.tracks[c].last_frame for c in self.active}
+        gaps = [got[c].frame - previous if c in got and (previous := last[c]) is not None else 1 for c in self.active]
         if all(g == 1 for g in gaps):
             return None
         return torch.tensor(gaps, dtype=self.model.dtype) / self.rate
