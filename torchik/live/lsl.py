@@ -84,6 +84,8 @@ class LslSource:
                        for i in infos]
         try:
             full = [inlet.info(timeout) for inlet in self.inlets]
+            for inlet in self.inlets:  # buffer from now on: an inlet otherwise connects at its first pull
+                inlet.open_stream(timeout)
         except lsl.TimeoutError as exc:  # the stream closed between resolving and connecting
             raise InputError(f"LSL stream {value!r} went away before it could be read") from exc
         self.links, self.base = [], []

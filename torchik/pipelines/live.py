@@ -28,7 +28,7 @@ from ..live.sample import Sample, Source
 from ..method import so3
 from ..method.kinematics import KinematicModel
 from ..method.settings import TrackerSettings
-from ..method.state import State, Trajectory
+from ..method.state import PER_SUBJECT, State, Trajectory
 from ..method.targets import Targets
 from ..method.tracker import DynamicalIK
 from .evaluation import summary
@@ -154,8 +154,7 @@ class _Track:
 
     time: list = field(default_factory=list)
     states: list = field(default_factory=list)
-    mnte: list = field(default_factory=list)
-    dropped: list = field(default_factory=list)
+    diagnostics: dict[str, list] = field(default_factory=lambda: {name: [] for name in PER_SUBJECT})
     targets: list = field(default_factory=list)
     last_frame: int | None = None
 
@@ -163,8 +162,7 @@ class _Track:
         stack = lambda name: torch.stack([getattr(s, name) for s in self.states])[:, None]  # noqa: E731
         return Trajectory(torch.tensor(self.time, dtype=torch.float64), stack("base_position"), stack("base_rotation"),
                           stack("joint_positions"), stack("velocity"),
-                          dict(mnte=torch.tensor(self.mnte)[:, None], dropped=torch.tensor(self.dropped)[:, None]),
-                          interrupted)
+                          {name: torch.stack(v)[:, None] for name, v in self.diagnostics.items()}, interrupted)
 
 
 @dataclass
@@ -336,8 +334,8 @@ class _Loop:
             track.time.append(sample.frame / self.rate)
             track.states.append(State(state.base_position[row], state.base_rotation[row], state.joint_positions[row],
                                       state.velocity[row]))
-            track.mnte.append(float(diagnostics.mnte[row]))
-            track.dropped.append(int(diagnostics.dropped[row]))
+            for name, values in track.diagnostics.items():
+                values.append(getattr(diagnostics, name)[row])
             if self.keep_targets:
                 track.targets.append(Targets(*(t[row:row + 1] for t in vars(targets).values())))
 
