@@ -173,6 +173,8 @@ class _LslSender:
                                      f.base_velocity[data], stamp)
 
     def close(self) -> None:
+        # an outlet that closes drops what it has not yet sent: the last samples get time to go out
+        time.sleep(0.5)
         self.outlets = []
 
 
