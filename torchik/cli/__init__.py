@@ -12,10 +12,10 @@ import sys
 
 from ..data import version
 from ..errors import TorchikError
-from . import bench, cohort, diagnose, experiment, models, recordings, retarget, track
+from . import bench, cohort, diagnose, experiment, live, models, recordings, replay, retarget, track
 from .common import Parser
 
-COMMANDS = (track, models, recordings, bench, experiment, retarget, cohort, diagnose)  # in --help's order
+COMMANDS = (track, models, recordings, bench, experiment, retarget, cohort, diagnose, live, replay)  # in --help's order
 
 
 def build_parser() -> Parser:
