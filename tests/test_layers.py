@@ -2,8 +2,9 @@
 
 Layers, bottom up: errors and `torchik/data/` (the package's version and files); the method
 (`torchik/method/`); data (`torchik/io/`, `torchik/synthetic/`, the live sources `torchik/live/`);
-pipelines (`torchik/pipelines/`); the command line (`torchik/cli/`); the package's root API (`torchik/__init__.py`, `__main__.py`).
-Read from the source with `ast`, imports inside functions included: a lazy import is still a dependency.
+pipelines (`torchik/pipelines/`); the command line (`torchik/cli/`); the package's root API
+(`torchik/__init__.py`, `__main__.py`). Read from the source with `ast`, imports inside functions
+included: a lazy import is still a dependency.
 """
 
 from __future__ import annotations
