@@ -4,6 +4,7 @@ any work, and the device."""
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from ..errors import InputError
@@ -53,16 +54,40 @@ def check_outputs(paths, force: bool) -> None:
             raise InputError(f"{path}: no folder {path.parent} to write into; create it first")
 
 
+def positive(text: str) -> float:
+    """argparse type of a quantity that must be a finite number above zero (a rate, a gain, a length)."""
+    value = float(text)  # ValueError: argparse says "invalid float value"
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a finite number above zero")
+    return value
+
+
+def fraction(text: str) -> float:
+    """argparse type of a fraction, a finite number from 0 to 1."""
+    value = float(text)
+    if not 0.0 <= value <= 1.0:  # False for NaN
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a fraction from 0 to 1")
+    return value
+
+
+positive.__name__ = fraction.__name__ = "float"  # what argparse names in "invalid float value: 'fast'"
+
+
 def torch_device(text: str):
-    """A torch.device from --device, refused before any work when torch has no such device here."""
+    """A torch.device from --device, refused before any work when torch has no such device here
+    (the tracker runs on the CPU and on CUDA only: MPS has no float64)."""
     import torch
 
     try:
         device = torch.device(text)
     except RuntimeError:
-        raise InputError(f"--device {text!r}: expected cpu, cuda or cuda:N") from None
+        device = None
+    if device is None or device.type not in ("cpu", "cuda"):
+        raise InputError(f"--device {text!r}: expected cpu, cuda or cuda:N")
     if device.type == "cuda" and not torch.cuda.is_available():
         raise InputError("--device cuda: no CUDA device is available to torch here; use --device cpu")
+    if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
+        raise InputError(f"--device {text}: torch sees {torch.cuda.device_count()} CUDA devices here")
     return device
 
 

@@ -34,6 +34,9 @@ class StepDiagnostics:
     active_constraints: [B] bounds and linear limits active in the QP's solution;
     solved: [B] False where the QP failed and the clipped fallback was used;
     dropped: [B] non-finite targets dropped; projected: [B] target rotations projected onto SO(3);
+    failed: [B] True where the step's state broke the invariant (not finite, rotation not orthonormal,
+    joints beyond their limits) and the subject restarted from the step's targets;
+    new_segment: [B] True where a gap in time longer than max_gap steps restarted the subject;
     step_time: seconds for the whole batch, of which kinematics_time (the kinematics calls) and
     qp_time (the QP backend's solve).
     """
@@ -44,12 +47,15 @@ class StepDiagnostics:
     solved: torch.Tensor
     dropped: torch.Tensor
     projected: torch.Tensor
+    failed: torch.Tensor
+    new_segment: torch.Tensor
     step_time: float
     kinematics_time: float = 0.0
     qp_time: float = 0.0
 
 
-PER_SUBJECT = ("mnte", "residual_norm", "active_constraints", "solved", "dropped", "projected")  # [B] each step
+PER_SUBJECT = ("mnte", "residual_norm", "active_constraints", "solved", "dropped", "projected", "failed",
+               "new_segment")  # [B] each step
 PER_BATCH = ("step_time", "kinematics_time", "qp_time")  # seconds, one per step
 
 
@@ -75,7 +81,7 @@ class Trajectory:
     """A tracked sequence: time [T]; base_position [T,B,3]; base_rotation [T,B,3,3];
     joint_positions [T,B,n]; velocity [T,B,6+n]; the step diagnostics stacked over time
     (mnte [T,B], residual_norm [T,B,n_t], active_constraints [T,B], solved [T,B], dropped [T,B],
-    projected [T,B], step_time [T], kinematics_time [T], qp_time [T]); interrupted: the run
+    projected [T,B], failed [T,B], new_segment [T,B], step_time [T], kinematics_time [T], qp_time [T]); interrupted: the run
     was stopped (Ctrl-C) before the end of its targets."""
 
     time: torch.Tensor
