@@ -4,6 +4,13 @@ and devices are checked before any work (exit 2, one line)."""
 
 import dataclasses
 import json
+import os
+import signal
+import stat
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -77,3 +84,59 @@ def test_a_run_on_clean_data_reports_one_segment_and_no_failure(cli, tmp_path, w
     code, err, report, trajectory = tracked(cli, tmp_path, walk)
     assert code == 0, err
     assert report["segments"] == [[0.0, 3.0]] and report["failed_steps"] == 0 and report["implausible_samples"] == 0
+
+
+@pytest.mark.parametrize("make", ["fifo", "symlink", "device", "input"])
+def test_outputs_that_are_special_files_symlinks_or_the_input_are_refused_untouched(cli, tmp_path, walk, make):
+    source = tmp_path / "in.npz"
+    save_recording(walk, source)
+    if make == "fifo":
+        output = tmp_path / "pipe"
+        os.mkfifo(output)
+    elif make == "symlink":
+        output = tmp_path / "link.npz"
+        output.symlink_to(source)
+    elif make == "device":
+        output = Path("/dev/null")
+    else:
+        output = source
+    before = source.read_bytes()
+    code, _, err = cli("track", "--input", source, "--out", output, "--force", "--quiet")
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert source.read_bytes() == before
+    assert output.is_symlink() if make == "symlink" else output.exists()
+    if make == "fifo":
+        assert stat.S_ISFIFO(output.lstat().st_mode)
+
+
+def test_a_report_on_standard_output_is_the_json_alone(cli, tmp_path, walk):
+    source = tmp_path / "in.npz"
+    save_recording(walk, source)
+    code, out, err = cli("track", "--input", source, "--report", "-")
+    assert code == 0, err
+    assert json.loads(out)["frames"] == len(walk.time)
+
+
+def test_sigterm_keeps_the_frames_done_exits_143_and_leaves_no_part_file(tmp_path):
+    out = tmp_path / "out.npz"
+    command = [sys.executable, "-m", "torchik", "track", "--scenario", "walking", "--duration", "600", "--out", out]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(0.5)
+    deadline = time.monotonic() + 60
+    while "tracking" not in _peek(process) and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.2)  # until the scenario is built and the tracking has begun
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 143, err
+    assert "terminated" in err.strip().splitlines()[-1]
+    frames = np.load(out)["time"]
+    assert 0 < len(frames) < 60000 and np.isfinite(np.load(out)["base_rotation"]).all()
+    assert not list(tmp_path.glob(".*.part"))
+
+
+def _peek(process) -> str:
+    """What the process wrote to stderr so far, without waiting (the progress bar appears after a second)."""
+    import select
+
+    ready, _, _ = select.select([process.stderr], [], [], 0)
+    return os.read(process.stderr.fileno(), 65536).decode(errors="replace") if ready else ""

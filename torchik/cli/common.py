@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import signal
+import stat
 from pathlib import Path
 
 from ..errors import InputError
@@ -45,13 +48,51 @@ def add_map_arguments(parser: argparse.ArgumentParser, target: str = "the model'
                              "(default: the map's own choice, else 0)")
 
 
-def check_outputs(paths, force: bool) -> None:
-    """Refuse, before any work, outputs that exist (without --force) or whose folder does not."""
-    for path in (Path(p) for p in paths if p):
+def check_outputs(paths, force: bool, inputs=()) -> None:
+    """Refuse, before any work, outputs that exist (without --force), that are not regular files (a
+    FIFO, a device, a socket, a symlink: replacing them would destroy them), that are one of the
+    `inputs`, or whose folder does not exist or cannot be written. '-' (standard output) passes."""
+    sources = {Path(p).resolve() for p in inputs if p}
+    for path in (Path(p) for p in paths if p and p != "-"):
+        if path.is_symlink() or (path.exists() and not path.is_file()):
+            raise InputError(f"{path} is {_kind(path)}, which an output would replace; give a regular file's name"
+                             " (or - for standard output where the option takes it)")
+        if path.resolve() in sources:
+            raise InputError(f"{path} is also an input; write the output to another file")
         if path.exists() and not force:
             raise InputError(f"{path} exists; add --force to overwrite it")
         if not path.parent.is_dir():
             raise InputError(f"{path}: no folder {path.parent} to write into; create it first")
+        if not os.access(path.parent, os.W_OK | os.X_OK):
+            raise InputError(f"{path}: the folder {path.parent} is not writable")
+
+
+def _kind(path: Path) -> str:
+    mode = path.lstat().st_mode
+    kinds = ((stat.S_ISLNK, "a symbolic link"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"),
+             (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISDIR, "a folder"))
+    return next((name for test, name in kinds if test(mode)), "not a regular file")
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C's KeyboardInterrupt would be: every `finally` (the `.part` files')
+    and every handler of Ctrl-C (`track` keeping the frames done) runs for it too."""
+
+    received = False  # since terminate_as_interrupt: a run that stopped tells SIGTERM from Ctrl-C by it
+
+
+def terminate_as_interrupt():
+    """Raise Terminated on SIGTERM from now on; returns the previous handler (None off the main
+    thread, where Python cannot handle signals)."""
+    def terminate(signum, frame):
+        Terminated.received = True
+        raise Terminated()
+
+    Terminated.received = False
+    try:
+        return signal.signal(signal.SIGTERM, terminate)
+    except ValueError:  # not the main thread
+        return None
 
 
 def positive(text: str) -> float:

@@ -4,6 +4,9 @@ rerun recording."""
 from __future__ import annotations
 
 import argparse
+import builtins
+import functools
+import json
 import sys
 import time
 from pathlib import Path
@@ -14,7 +17,7 @@ from ..method.models import MODELS
 from ..method.qp import BACKENDS
 from ..method.settings import SCHEMES, TrackerSettings
 from ..synthetic.scenarios import SCENARIOS
-from .common import add_command, add_map_arguments, check_outputs, fraction, model_urdf, positive, torch_device
+from .common import Terminated, add_command, add_map_arguments, check_outputs, fraction, model_urdf, positive, torch_device
 
 MAX_FAILED = 0.01  # a restart now and then is recovery; one step in a hundred is a run not to trust
 
@@ -71,7 +74,7 @@ def add_parser(subparsers) -> None:
                        metavar="M_S", help="drop, as missing, base samples moving (or jumping between samples) "
                        f"faster than this (default {Plausibility.max_linear_velocity:g} m/s)")
     track.add_argument("--device", default="cpu", help="torch device: cpu (default), cuda or cuda:N")
-    track.add_argument("--report", metavar="JSON", help="write the metrics here")
+    track.add_argument("--report", metavar="JSON", help="write the metrics here (- : standard output)")
     track.add_argument("--out", metavar="NPZ", help="write the estimated trajectory here")
     track.add_argument("--rrd", metavar="FILE", help="write a rerun recording here (.rrd): the body, targets and "
                        "diagnostics over time; open it with `rerun FILE`")
@@ -90,7 +93,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.rrd and Path(args.rrd).suffix != ".rrd":
         raise InputError(f"{args.rrd}: a rerun recording's name must end in .rrd (e.g. walk.rrd)")
-    check_outputs([args.report, args.out, args.rrd], args.force)
+    if args.out == "-" or args.rrd == "-":
+        raise InputError("only --report may be - (standard output); --out and --rrd are binary files")
+    check_outputs([args.report, args.out, args.rrd], args.force, inputs=[args.input, args.calibration,
+                                                                          args.sensor_calibration, args.urdf])
     if not args.input and args.scenario not in SCENARIOS:
         raise InputError(f"unknown scenario {args.scenario!r}; valid: {', '.join(SCENARIOS)}")
     device = torch_device(args.device)
@@ -132,13 +138,15 @@ def run(args: argparse.Namespace) -> int:
     bounds = Plausibility(max_angular_velocity=args.max_angular_velocity, max_linear_velocity=args.max_linear_velocity)
     trajectory, report = track_recording(model, recording, links, settings, progress=not args.quiet, plausibility=bounds)
     report.update(source=source, device=str(device), wall_time_s=time.perf_counter() - start)
-    if not args.quiet:
-        _print_report(report, source, model.name)
+    if not args.quiet:  # beside a report on standard output, on standard error
+        _print_report(report, source, model.name, sys.stderr if args.report == "-" else sys.stdout)
     fault = output_fault(trajectory, report, args.max_failed)
     if fault:
         print(f"torchik track: {fault}", file=sys.stderr)
         return 1
-    if args.report:
+    if args.report == "-":
+        print(json.dumps(report, indent=2))
+    elif args.report:
         write_json(report, args.report)
         if not args.quiet:
             print(f"wrote {args.report}")
@@ -156,8 +164,9 @@ def run(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"wrote {args.rrd} in {time.perf_counter() - start:.1f} s; open it with: rerun {args.rrd}")
     if report["interrupted"]:
-        print(f"torchik track: interrupted; the outputs hold the {report['frames']} frames tracked", file=sys.stderr)
-        return 130
+        how = "terminated" if Terminated.received else "interrupted"
+        print(f"torchik track: {how}; the outputs hold the {report['frames']} frames tracked", file=sys.stderr)
+        return 143 if Terminated.received else 130
     return 0
 
 
@@ -169,8 +178,9 @@ def _check_stability(settings: TrackerSettings, dt: float) -> None:
                          f"{SCHEMES[settings.scheme]:g}: use a gain below {SCHEMES[settings.scheme] / dt:g}")
 
 
-def _print_report(report: dict, source: str, model_name: str) -> None:
+def _print_report(report: dict, source: str, model_name: str, file=sys.stdout) -> None:
     m, r, st = report["mnte"], report["angular_velocity_rmse"], report["step_time_ms"]
+    print = functools.partial(builtins.print, file=file)  # noqa: A001
     print(f"tracked {source} with {model_name}: {report['frames']} frames in {report['wall_time_s']:.1f} s")
     if m:
         print(f"    MNTE after {report['transient_s']:.0f} s: median {m['median']:.2e}, p99 {m['p99']:.2e}")
@@ -184,4 +194,4 @@ def _print_report(report: dict, source: str, model_name: str) -> None:
         print(f"    failed steps {report['failed_steps']} (restarted); segments (s): "
               + ", ".join(f"{a:.2f}-{b:.2f}" for a, b in report["segments"]))
     if m is None:
-        print("    no frame has all its targets known: nothing was measured", file=sys.stderr)
+        builtins.print("    no frame has all its targets known: nothing was measured", file=sys.stderr)
