@@ -109,8 +109,9 @@ def validate(rec: Recording, where: str = "recording") -> None:
     if known.any():
         # the tracker projects rotations this close to SO(3) (noise, float32 exports) and counts them
         Rk = R[known]
-        error = np.linalg.norm(np.swapaxes(Rk, -1, -2) @ Rk - np.eye(3), axis=(-1, -2))
-        det = np.linalg.det(Rk)
+        with np.errstate(over="ignore", invalid="ignore"):  # huge entries: an infinite error, refused below
+            error = np.linalg.norm(np.swapaxes(Rk, -1, -2) @ Rk - np.eye(3), axis=(-1, -2))
+            det = np.linalg.det(Rk)
         bad = (error > PROJECT_TOLERANCE) | (det < 0)
         if bad.any():
             t, i = np.argwhere(known)[int(np.argmax(bad))]
