@@ -93,6 +93,11 @@ class Trajectory:
     interrupted: bool = False
 
     @classmethod
+    def preallocated(cls, time: torch.Tensor, state: State, diagnostics: StepDiagnostics) -> "TrajectoryBuffer":
+        """A buffer for a run of len(time) steps shaped as this first step's state and diagnostics."""
+        return TrajectoryBuffer(time, state, diagnostics)
+
+    @classmethod
     def from_steps(cls, time: torch.Tensor, states: list[State], diagnostics: list[StepDiagnostics],
                    interrupted: bool = False) -> "Trajectory":
         """The trajectory of a run's steps: time [T], one State and StepDiagnostics per step."""
@@ -102,3 +107,36 @@ class Trajectory:
             stacked[name] = torch.tensor([getattr(d, name) for d in diagnostics], dtype=torch.float64)
         return cls(time, stack(states, "base_position"), stack(states, "base_rotation"),
                    stack(states, "joint_positions"), stack(states, "velocity"), stacked, interrupted)
+
+
+class TrajectoryBuffer:
+    """A run's trajectory filled step by step into tensors allocated once ([T,...] per field): memory
+    is the trajectory's size, not a few tensor objects per step (which, for an hour at 100 Hz, weigh
+    several times the numbers they hold)."""
+
+    def __init__(self, time: torch.Tensor, state: State, diagnostics: StepDiagnostics):
+        T = time.shape[0]
+        empty = lambda x: x.new_empty((T, *x.shape))  # noqa: E731
+        self.time = time
+        self.states = {name: empty(x) for name, x in vars(state).items()}
+        self.per_subject = {name: empty(getattr(diagnostics, name)) for name in PER_SUBJECT}
+        self.per_batch = {name: torch.empty(T, dtype=torch.float64) for name in PER_BATCH}
+        self.done = 0
+
+    def put(self, state: State, diagnostics: StepDiagnostics) -> None:
+        """Append a step."""
+        k = self.done
+        for name, x in vars(state).items():
+            self.states[name][k] = x
+        for name in PER_SUBJECT:
+            self.per_subject[name][k] = getattr(diagnostics, name)
+        for name in PER_BATCH:
+            self.per_batch[name][k] = getattr(diagnostics, name)
+        self.done += 1
+
+    def trajectory(self, interrupted: bool = False) -> Trajectory:
+        """The steps put so far as a Trajectory (views of the buffers)."""
+        done = slice(0, self.done)
+        diagnostics = {name: x[done] for name, x in {**self.per_subject, **self.per_batch}.items()}
+        return Trajectory(self.time[done], *(x[done] for x in self.states.values()), diagnostics=diagnostics,
+                          interrupted=interrupted)

@@ -45,7 +45,7 @@ from .qp import BACKENDS, QPBackend, QPProblem, TreeHessian, make_backend
 from .residual import corrected_velocity, orientation_residual, position_residual
 from .scheme import Evaluation, SchemeHistory
 from .settings import SCHEMES, TrackerSettings
-from .state import State, StepDiagnostics, TargetSequence, Trajectory
+from .state import State, StepDiagnostics, TargetSequence, Trajectory, TrajectoryBuffer
 from .structure import BatchSetup, StepStructure
 from .targets import Targets, check_targets, clean_targets
 from .task import Objective, normal_equations
@@ -364,30 +364,35 @@ class DynamicalIK:
             from tqdm import tqdm
 
             steps = tqdm(steps, desc="tracking", unit="step", leave=False, delay=1.0)
-        states, diagnostics, interrupted = [], [], False
+        buffer: TrajectoryBuffer | None = None
+        interrupted = False
         try:
             for k in steps:
-                state, diagnostic = self.step(sequence[k], time_steps[k])
-                states.append(state)  # the tracker replaces its state every step: these stay valid
-                diagnostics.append(diagnostic)
+                state, diagnostic = self.step(sequence[k], time_steps(k))
+                if buffer is None:
+                    buffer = Trajectory.preallocated(sequence.time, state, diagnostic)
+                buffer.put(state, diagnostic)
         except KeyboardInterrupt:
-            if not interruptible or not states:
+            if not interruptible or buffer is None:
                 raise
             interrupted = True
         finally:
             if progress:
                 steps.close()
-        return Trajectory.from_steps(sequence.time[:len(states)], states, diagnostics, interrupted)
+        assert buffer is not None  # T > 0 steps were taken, or the interrupt rose
+        return buffer.trajectory(interrupted)
 
-    def _time_steps(self, time_: torch.Tensor, B: int) -> list:
-        """Each step's dt for `run`: None (the nominal dt, which the step uses without checks or tensor
-        arithmetic) where the timestamps' gap is the nominal one to their rounding, else the gap [B]."""
+    def _time_steps(self, time_: torch.Tensor, B: int):
+        """Step k's dt for `run`, a function of k: None (the nominal dt, which the step uses without
+        checks or tensor arithmetic) where the timestamps' gap is the nominal one to their rounding,
+        else the gap [B] (made when asked: a tensor per step held for the whole run would weigh more
+        than the trajectory)."""
         T = len(time_)
         gaps = (time_[1:] - time_[:-1]).to(self.model.dtype)
         rounding = 64 * torch.finfo(time_.dtype).eps * float(time_.abs().max()) if T > 1 else 0.0
         nominal = [True] + ((gaps - self.dt).abs() <= rounding).tolist()
-        gaps = gaps.to(self.model.device)[:, None].expand(-1, B)
-        return [None if nominal[k] else gaps[k - 1] for k in range(T)]
+        gaps = gaps.to(self.model.device)
+        return lambda k: None if nominal[k] else gaps[k - 1].expand(B)
 
 
 def _check_settings(settings: TrackerSettings) -> None:
