@@ -111,8 +111,25 @@ def test_values_that_are_not_numbers_are_errors_naming_the_place(tmp_path):
     lines = bvh_text().splitlines()
     lines[-3] = lines[-3].replace("0.0000000000", "nope", 1)
     path.write_text("\n".join(lines) + "\n")
-    with pytest.raises(RecordingError, match="frame 37: values that are not numbers"):
+    with pytest.raises(RecordingError, match=r"line \d+ \(frame 37\): 'nope' is not a number \(Hips Xposition\)"):
         read_bvh(path)
     path.write_text(bvh_text().replace("Frames: 40", "Frames: 0"))
     with pytest.raises(RecordingError, match="announces 0 frames"):
         read_bvh(path)
+
+
+@pytest.mark.parametrize("value", ["nan", "NaN", "inf", "-inf"])
+def test_a_non_finite_motion_value_marks_the_joints_it_moves_missing_in_that_frame(tmp_path, value):
+    lines = bvh_text().splitlines()
+    spine_x = 6 + 3 + 1  # Hips' 6 channels, Leg's 3, then Spine's order Z X Y: its X rotation
+    row = lines[-20].split()  # frame 20 of 40
+    row[spine_x] = value
+    lines[-20] = " ".join(row)
+    (tmp_path / "gap.bvh").write_text("\n".join(lines) + "\n")
+    rec = read_bvh(tmp_path / "gap.bvh")
+    missing = np.isnan(rec.orientation).any(axis=(-1, -2))  # [T,n]
+    assert missing.nonzero()[0].tolist() == [20, 20] and [rec.links[i] for i in missing.nonzero()[1]] == ["Spine", "Arm"]
+    assert rec.meta["missing_frames"] == {"Spine": 1, "Arm": 1}
+    assert np.isfinite(rec.base_position).all() and not np.isinf(rec.angular_velocity).any()
+    known = rec.orientation[~missing]
+    assert np.abs(np.swapaxes(known, -1, -2) @ known - np.eye(3)).max() < 1e-12

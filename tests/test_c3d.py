@@ -84,3 +84,11 @@ def test_every_real_c3d_converts_with_orthonormal_rotations(name):
     R = rec.orientation[~np.isnan(rec.orientation).any(axis=(-1, -2))]
     assert np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max() < 1e-6
     assert rec.meta["triad_max_deviation"] < 1e-5  # the file's own triads are nearly orthonormal
+
+
+@pytest.mark.parametrize("kept", [0.5, 0.99])
+def test_a_cut_file_is_refused_from_the_header_frame_count(tmp_path, kept):
+    whole = (SHARED / "HC002D02.c3d").read_bytes()
+    (tmp_path / "cut.c3d").write_bytes(whole[:int(len(whole) * kept)])
+    with pytest.raises(RecordingError, match=r"cut.c3d: truncated: the header declares 51 frames, the file holds \d+"):
+        read_c3d(tmp_path / "cut.c3d")

@@ -94,3 +94,43 @@ def test_finite_difference_angular_velocity_of_a_constant_spin():
     R = so3.exp(torch.from_numpy(t[:, None] * w)).numpy()[:, None]  # [T,1,3,3], world-frame spin
     estimate = angular_velocity_from_orientations(R, t)
     assert np.allclose(estimate, w, atol=1e-10)
+
+
+def test_messages_name_what_the_input_is_and_print_times_as_plain_numbers(tmp_path):
+    with pytest.raises(RecordingError, match="is a folder; give a recording file"):
+        load_recording(tmp_path)
+    (tmp_path / "notes.npz").write_text("time,x\n0,1\n")
+    with pytest.raises(RecordingError, match=r"notes.npz: not a torchik recording \(.npz, a zip archive") as caught:
+        load_recording(tmp_path / "notes.npz")
+    assert "pickle" not in str(caught.value)
+    with pytest.raises(RecordingError, match=r"frame 2 at 0.01 s follows 0.01 s$"):
+        Recording(**valid(time=np.array([0.0, 0.01, 0.01, 0.03])))
+
+
+@pytest.mark.parametrize("scale, accepted", [(1 + 1e-5, True), (1 + 2.5e-3, True), (1 + 2e-2, False)])
+def test_rotations_within_the_trackers_projection_tolerance_load_and_are_projected_and_counted(tmp_path, scale, accepted):
+    from torchik.io import recording_targets
+    from torchik.method.targets import PROJECT_TOLERANCE, clean_targets
+
+    R = valid()["orientation"].copy()
+    R[1, 0] *= scale  # ||R^T R - I|| = sqrt(3) (scale^2 - 1): 3.5e-5, 8.7e-3, 6.9e-2
+    deviation = np.linalg.norm(R[1, 0].T @ R[1, 0] - np.eye(3))
+    assert (deviation <= PROJECT_TOLERANCE) == accepted
+    if not accepted:
+        with pytest.raises(RecordingError, match="'Pelvis' at frame 1 is not a rotation"):
+            Recording(**valid(orientation=R))
+        return
+    path = save_recording(Recording(**valid(orientation=R)), tmp_path / "near.npz")
+    rec = load_recording(path)
+    assert np.array_equal(rec.orientation, R)  # kept as measured: the tracker projects it
+    sequence = recording_targets(rec, ("Pelvis", "Head"))
+    assert [int(clean_targets(sequence[k]).projected.sum()) for k in range(4)] == [0, 1, 0, 0]
+
+
+def test_read_names_a_folder_as_a_folder_whatever_its_suffix(tmp_path):
+    from torchik.io import read
+
+    for name in ("session", "session.bvh"):
+        (tmp_path / name).mkdir()
+        with pytest.raises(RecordingError, match=f"{name}: is a folder; give a recording file"):
+            read(tmp_path / name)

@@ -2,18 +2,20 @@
 code), the options several commands share in `common.py`. Nothing outside this package imports it.
 
 Exit codes: 0 ok; 2 bad input (one line on stderr saying what is wrong and what would be right);
-1 failure; 130 interrupted by Ctrl-C (`track` has then written its outputs for the frames done).
+1 failure; 130 interrupted by Ctrl-C, 143 by SIGTERM (`timeout`, a batch scheduler, `docker stop`),
+which is handled as Ctrl-C (`track` has then written its outputs for the frames done).
 """
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 
 from ..data import version
 from ..errors import TorchikError
 from . import bench, cohort, diagnose, experiment, live, models, recordings, replay, retarget, track
-from .common import Parser
+from .common import Parser, Terminated, terminate_as_interrupt
 
 COMMANDS = (track, models, recordings, bench, experiment, retarget, cohort, diagnose, live, replay)  # in --help's order
 
@@ -39,11 +41,15 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     keep_freed_memory()
+    previous = terminate_as_interrupt()
     try:
         return args.run(args)
     except TorchikError as exc:
         print(f"torchik {args.command}: {exc}", file=sys.stderr)
         return 2
+    except Terminated:
+        print(f"torchik {args.command}: terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print(f"torchik {args.command}: interrupted", file=sys.stderr)
         return 130
@@ -54,3 +60,7 @@ def main(argv: list[str] | None = None) -> int:
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"torchik {args.command}: {where}{exc.strerror or exc}", file=sys.stderr)
         return 1
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+

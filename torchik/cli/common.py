@@ -4,6 +4,10 @@ any work, and the device."""
 from __future__ import annotations
 
 import argparse
+import math
+import os
+import signal
+import stat
 from pathlib import Path
 
 from ..errors import InputError
@@ -46,25 +50,87 @@ def add_map_arguments(parser: argparse.ArgumentParser, target: str = "the model'
                              "(default: the map's own choice, else 0)")
 
 
-def check_outputs(paths, force: bool) -> None:
-    """Refuse, before any work, outputs that exist (without --force) or whose folder does not."""
-    for path in (Path(p) for p in paths if p):
+def check_outputs(paths, force: bool, inputs=()) -> None:
+    """Refuse, before any work, outputs that exist (without --force), that are not regular files (a
+    FIFO, a device, a socket, a symlink: replacing them would destroy them), that are one of the
+    `inputs`, or whose folder does not exist or cannot be written. '-' (standard output) passes."""
+    sources = {Path(p).resolve() for p in inputs if p}
+    for path in (Path(p) for p in paths if p and p != "-"):
+        if path.is_symlink() or (path.exists() and not path.is_file()):
+            raise InputError(f"{path} is {_kind(path)}, which an output would replace; give a regular file's name"
+                             " (or - for standard output where the option takes it)")
+        if path.resolve() in sources:
+            raise InputError(f"{path} is also an input; write the output to another file")
         if path.exists() and not force:
             raise InputError(f"{path} exists; add --force to overwrite it")
         if not path.parent.is_dir():
             raise InputError(f"{path}: no folder {path.parent} to write into; create it first")
+        if not os.access(path.parent, os.W_OK | os.X_OK):
+            raise InputError(f"{path}: the folder {path.parent} is not writable")
+
+
+def _kind(path: Path) -> str:
+    mode = path.lstat().st_mode
+    kinds = ((stat.S_ISLNK, "a symbolic link"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"),
+             (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISDIR, "a folder"))
+    return next((name for test, name in kinds if test(mode)), "not a regular file")
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C's KeyboardInterrupt would be: every `finally` (the `.part` files')
+    and every handler of Ctrl-C (`track` keeping the frames done) runs for it too."""
+
+    received = False  # since terminate_as_interrupt: a run that stopped tells SIGTERM from Ctrl-C by it
+
+
+def terminate_as_interrupt():
+    """Raise Terminated on SIGTERM from now on; returns the previous handler (None off the main
+    thread, where Python cannot handle signals)."""
+    def terminate(signum, frame):
+        Terminated.received = True
+        raise Terminated()
+
+    Terminated.received = False
+    try:
+        return signal.signal(signal.SIGTERM, terminate)
+    except ValueError:  # not the main thread
+        return None
+
+
+def positive(text: str) -> float:
+    """argparse type of a quantity that must be a finite number above zero (a rate, a gain, a length)."""
+    value = float(text)  # ValueError: argparse says "invalid float value"
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a finite number above zero")
+    return value
+
+
+def fraction(text: str) -> float:
+    """argparse type of a fraction, a finite number from 0 to 1."""
+    value = float(text)
+    if not 0.0 <= value <= 1.0:  # False for NaN
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a fraction from 0 to 1")
+    return value
+
+
+positive.__name__ = fraction.__name__ = "float"  # what argparse names in "invalid float value: 'fast'"
 
 
 def torch_device(text: str):
-    """A torch.device from --device, refused before any work when torch has no such device here."""
+    """A torch.device from --device, refused before any work when torch has no such device here
+    (the tracker runs on the CPU and on CUDA only: MPS has no float64)."""
     import torch
 
     try:
         device = torch.device(text)
     except RuntimeError:
-        raise InputError(f"--device {text!r}: expected cpu, cuda or cuda:N") from None
+        device = None
+    if device is None or device.type not in ("cpu", "cuda"):
+        raise InputError(f"--device {text!r}: expected cpu, cuda or cuda:N")
     if device.type == "cuda" and not torch.cuda.is_available():
         raise InputError("--device cuda: no CUDA device is available to torch here; use --device cpu")
+    if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
+        raise InputError(f"--device {text}: torch sees {torch.cuda.device_count()} CUDA devices here")
     return device
 
 

@@ -4,24 +4,33 @@ rerun recording."""
 from __future__ import annotations
 
 import argparse
+import builtins
+import functools
+import json
 import sys
 import time
 from pathlib import Path
 
 from ..errors import InputError
+from ..io.plausible import Plausibility
 from ..method.models import MODELS
 from ..method.qp import BACKENDS
 from ..method.settings import SCHEMES, TrackerSettings
 from ..synthetic.scenarios import SCENARIOS
 from .common import (
+    Terminated,
     add_command,
     add_map_arguments,
     add_subject_argument,
     check_outputs,
+    fraction,
     model_urdf,
+    positive,
     subject_from,
     torch_device,
 )
+
+MAX_FAILED = 0.01  # a restart now and then is recovery; one step in a hundred is a run not to trust
 
 EXAMPLES = """examples:
   torchik track --scenario walking --model human66 --rrd walk.rrd --report walk.json
@@ -57,19 +66,31 @@ def add_parser(subparsers) -> None:
     track.add_argument("--position-targets", nargs="+", metavar="LINK",
                        help="links with position targets besides the base (e.g. RightHand LeftHand RightFoot LeftFoot): "
                             "the recording's segment origins, as MVNX, BVH and C3D files give them")
-    track.add_argument("--duration", type=float, default=10.0, help="scenario length in seconds (default 10)")
-    track.add_argument("--rate", type=float, default=100.0, help="scenario rate in Hz (default 100)")
+    track.add_argument("--duration", type=positive, default=10.0, help="scenario length in seconds (default 10)")
+    track.add_argument("--rate", type=positive, default=100.0, help="scenario rate in Hz (default 100)")
     track.add_argument("--seed", type=int, default=0)
-    track.add_argument("--gain", type=float, default=TrackerSettings.position_gain,
+    track.add_argument("--gain", type=positive, default=TrackerSettings.position_gain,
                        help=f"K for positions and orientations, 1/s (default {TrackerSettings.position_gain:g})")
-    track.add_argument("--position-gain", type=float, metavar="K", help="K of the position target, 1/s (default --gain)")
-    track.add_argument("--orientation-gain", type=float, metavar="K",
+    track.add_argument("--position-gain", type=positive, metavar="K", help="K of the position target, 1/s (default --gain)")
+    track.add_argument("--orientation-gain", type=positive, metavar="K",
                        help="K of the orientation targets, 1/s (default --gain)")
     track.add_argument("--scheme", default=TrackerSettings.scheme, choices=tuple(SCHEMES))
     track.add_argument("--backend", default=TrackerSettings.backend, choices=("auto", *BACKENDS),
                        help="QP solver: PIQP per subject, batched in torch, or auto (batched for batches, default)")
+    track.add_argument("--max-gap", type=positive, default=TrackerSettings.max_gap, metavar="STEPS",
+                       help="a gap in time longer than this many frame intervals starts a new segment: the tracker "
+                            f"restarts from the targets after it (default {TrackerSettings.max_gap:g})")
+    track.add_argument("--max-failed", type=fraction, default=MAX_FAILED, metavar="FRACTION",
+                       help="exit 1, writing nothing, when steps failed (the state not finite or beyond the limits, "
+                            f"the subject restarted) on more than this fraction of the steps (default {MAX_FAILED:g})")
+    track.add_argument("--max-angular-velocity", type=positive, default=Plausibility.max_angular_velocity,
+                       metavar="RAD_S", help="drop, as missing, link samples turning faster than this "
+                       f"(default {Plausibility.max_angular_velocity:g} rad/s, beyond any human motion)")
+    track.add_argument("--max-linear-velocity", type=positive, default=Plausibility.max_linear_velocity,
+                       metavar="M_S", help="drop, as missing, base samples moving (or jumping between samples) "
+                       f"faster than this (default {Plausibility.max_linear_velocity:g} m/s)")
     track.add_argument("--device", default="cpu", help="torch device: cpu (default), cuda or cuda:N")
-    track.add_argument("--report", metavar="JSON", help="write the metrics here")
+    track.add_argument("--report", metavar="JSON", help="write the metrics here (- : standard output)")
     track.add_argument("--out", metavar="NPZ", help="write the estimated trajectory here")
     track.add_argument("--rrd", metavar="FILE", help="write a rerun recording here (.rrd): the body, targets and "
                        "diagnostics over time; open it with `rerun FILE`")
@@ -84,12 +105,15 @@ def run(args: argparse.Namespace) -> int:
     from ..io import map_recording, read, recording_targets, save_trajectory, write_json
     from ..io.maps import default_map
     from ..method.models import TRACKED_LINKS, load_model
-    from ..pipelines.track import track_recording
+    from ..pipelines.track import nominal_dt, output_fault, track_recording
     from ..synthetic.scenarios import scenario
 
     if args.rrd and Path(args.rrd).suffix != ".rrd":
         raise InputError(f"{args.rrd}: a rerun recording's name must end in .rrd (e.g. walk.rrd)")
-    check_outputs([args.report, args.out, args.rrd], args.force)
+    if args.out == "-" or args.rrd == "-":
+        raise InputError("only --report may be - (standard output); --out and --rrd are binary files")
+    check_outputs([args.report, args.out, args.rrd], args.force, inputs=[args.input, args.calibration,
+                                                                          args.sensor_calibration, args.urdf])
     if not args.input and args.scenario not in SCENARIOS:
         raise InputError(f"unknown scenario {args.scenario!r}; valid: {', '.join(SCENARIOS)}")
     device = torch_device(args.device)
@@ -129,17 +153,26 @@ def run(args: argparse.Namespace) -> int:
         source += f" with sensor calibration {args.sensor_calibration}"
     settings = TrackerSettings(position_gain=args.gain if args.position_gain is None else args.position_gain,
                                orientation_gain=args.gain if args.orientation_gain is None else args.orientation_gain,
-                               scheme=args.scheme, backend=args.backend)
+                               scheme=args.scheme, backend=args.backend, max_gap=args.max_gap)
+    _check_stability(settings, nominal_dt(recording, settings))
     start = time.perf_counter()
     position_links = None
     if args.position_targets:
         position_links = (model.base_link, *[name for name in args.position_targets if name != model.base_link])
+    bounds = Plausibility(max_angular_velocity=args.max_angular_velocity, max_linear_velocity=args.max_linear_velocity)
     trajectory, report = track_recording(model, recording, links, settings, progress=not args.quiet,
-                                         position_links=position_links)
+                                         position_links=position_links, plausibility=bounds)
     report.update(source=source, device=str(device), wall_time_s=time.perf_counter() - start)
-    if not args.quiet:
-        _print_report(report, source, model.name or Path(model.source).stem)
-    if args.report:
+    if not args.quiet:  # beside a report on standard output, on standard error
+        _print_report(report, source, model.name or Path(model.source).stem,
+                      sys.stderr if args.report == "-" else sys.stdout)
+    fault = output_fault(trajectory, report, args.max_failed)
+    if fault:
+        print(f"torchik track: {fault}", file=sys.stderr)
+        return 1
+    if args.report == "-":
+        print(json.dumps(report, indent=2))
+    elif args.report:
         write_json(report, args.report)
         if not args.quiet:
             print(f"wrote {args.report}")
@@ -157,13 +190,23 @@ def run(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"wrote {args.rrd} in {time.perf_counter() - start:.1f} s; open it with: rerun {args.rrd}")
     if report["interrupted"]:
-        print(f"torchik track: interrupted; the outputs hold the {report['frames']} frames tracked", file=sys.stderr)
-        return 130
+        how = "terminated" if Terminated.received else "interrupted"
+        print(f"torchik track: {how}; the outputs hold the {report['frames']} frames tracked", file=sys.stderr)
+        return 143 if Terminated.received else 130
     return 0
 
 
-def _print_report(report: dict, source: str, model_name: str) -> None:
+def _check_stability(settings: TrackerSettings, dt: float) -> None:
+    """Refuse gains beyond the scheme's stability bound K dt < 2 (the error would grow every step)."""
+    largest = max(settings.position_gain, settings.orientation_gain)
+    if largest * dt >= SCHEMES[settings.scheme]:
+        raise InputError(f"gain {largest:g} at {1 / dt:g} Hz gives K dt = {largest * dt:.3g}, beyond the stability bound "
+                         f"{SCHEMES[settings.scheme]:g}: use a gain below {SCHEMES[settings.scheme] / dt:g}")
+
+
+def _print_report(report: dict, source: str, model_name: str, file=sys.stdout) -> None:
     m, r, st = report["mnte"], report["angular_velocity_rmse"], report["step_time_ms"]
+    print = functools.partial(builtins.print, file=file)  # noqa: A001
     print(f"tracked {source} with {model_name}: {report['frames']} frames in {report['wall_time_s']:.1f} s")
     if m:
         print(f"    MNTE after {report['transient_s']:.0f} s: median {m['median']:.2e}, p99 {m['p99']:.2e}")
@@ -171,4 +214,10 @@ def _print_report(report: dict, source: str, model_name: str) -> None:
     if "joint_error_rad" in report:
         print(f"    joint error against ground truth: max {report['joint_error_rad']['max']:.2e} rad")
     print(f"    step time: median {st['median']:.2f} ms, p99 {st['p99']:.2f} ms; "
-          f"QP fallbacks {report['qp_fallbacks']}, dropped targets {report['dropped_targets']}")
+          f"QP fallbacks {report['qp_fallbacks']}, dropped targets {report['dropped_targets']} "
+          f"(implausible samples {report['implausible_samples']}), projected {report['projected_targets']}")
+    if report["failed_steps"] or len(report["segments"]) > 1:
+        print(f"    failed steps {report['failed_steps']} (restarted); segments (s): "
+              + ", ".join(f"{a:.2f}-{b:.2f}" for a, b in report["segments"]))
+    if m is None:
+        builtins.print("    no frame has all its targets known: nothing was measured", file=sys.stderr)

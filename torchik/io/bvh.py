@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from ..method import so3
-from .recording import Recording, RecordingError, angular_velocity_from_orientations
+from .recording import Recording, RecordingError, angular_velocity_from_orientations, readable_file
 
 UNITS = {"cm": 0.01, "m": 1.0, "inch": 0.0254, "cmu": 0.0254 / 0.45}
 HEIGHT_RANGE_M = (1.05, 2.25)  # vertical extent of a person's joints, metres: disjoint across UNITS
@@ -156,8 +156,11 @@ def _parse(path: Path) -> tuple[list[_Joint], np.ndarray, float]:
     try:
         motion = np.array(rows[: header["frames"]], dtype=np.float64)
     except ValueError:
-        frame = next(i for i, row in enumerate(rows) if not all(_is_number(v) for v in row))
-        raise RecordingError(f"{path}: frame {frame}: values that are not numbers: {rows[frame][:6]}") from None
+        frame: int = next(f for f, values in enumerate(rows) if not all(_is_number(v) for v in values))
+        column: int = next(c for c, v in enumerate(rows[frame]) if not _is_number(v))
+        joint = next(j for j in reversed(joints) if j.first_channel <= column)
+        raise RecordingError(f"{path}: line {k + frame + 1} (frame {frame}): {rows[frame][column]!r} is not a number "
+                             f"({joint.name} {joint.channels[column - joint.first_channel]})") from None
     if header["dt"] <= 0:
         raise RecordingError(f"{path}: Frame Time must be positive, got {header['dt']}")
     return joints, motion, header["dt"]
@@ -228,10 +231,11 @@ def read_bvh(path: str | Path, units: str = "auto", scale: float | None = None, 
              base_link: str | None = None) -> Recording:
     """Read a BVH file. units: 'auto', 'cm', 'm', 'inch' or 'cmu' (or give `scale`, metres per unit);
     up: the file's vertical axis ('y' or 'z'); base_link: default the hips/pelvis joint, else the root."""
-    path = Path(path)
-    if not path.is_file():
-        raise RecordingError(f"{path}: no such file")
+    path = readable_file(path)
     joints, motion, dt = _parse(path)
+    # a NaN (or Inf) value is a sample the exporter did not have: the joints it moves are missing in
+    # that frame (NaN rotations, as MVNX marks them), never a value for the tracker
+    motion = np.where(np.isfinite(motion), motion, np.nan)
     R, p = _forward_kinematics(joints, motion)
     if up == "y":
         to_world = Y_UP_TO_Z_UP
@@ -242,7 +246,10 @@ def read_bvh(path: str | Path, units: str = "auto", scale: float | None = None, 
     p = p @ to_world.T
     R = to_world @ R
     if scale is None:
-        extent = float(np.ptp(p[0, :, 2]))
+        complete = np.isfinite(p).all(axis=(1, 2))
+        if not complete.any():
+            raise RecordingError(f"{path}: no frame has every joint's position: cannot tell the units; give scale=")
+        extent = float(np.ptp(p[int(np.argmax(complete)), :, 2]))  # the first frame with every joint
         if units == "auto":
             fits = [u for u, s in UNITS.items() if HEIGHT_RANGE_M[0] <= extent * s <= HEIGHT_RANGE_M[1]]
             if len(fits) != 1:
@@ -261,14 +268,17 @@ def read_bvh(path: str | Path, units: str = "auto", scale: float | None = None, 
     elif base_link not in names:
         raise RecordingError(f"{path}: base link {base_link!r} is not a joint; joints: {list(names)}")
     # round-off in long products of Euler rotations: back onto SO(3)
-    R = so3.project(torch.from_numpy(R)).numpy()
+    known = np.isfinite(R).all(axis=(-1, -2))  # [T,J]
+    R = np.where(known[..., None, None], R, np.nan)
+    R[known] = so3.project(torch.from_numpy(R[known])).numpy()
+    missing = {name: int(m) for name, m in zip(names, (~known).sum(0)) if m}
     rest = _rest_pose(joints, motion.shape[1], to_world, tuple(j.name for j in joints))
     time = np.arange(motion.shape[0]) * dt
     base = names.index(base_link)
     velocity = np.gradient(p[:, base], time, axis=0) if len(time) > 1 else np.zeros((len(time), 3))
     meta = dict(source=str(path), format="bvh", units=units if units != "auto" else None, metres_per_unit=scale,
                 up=up, frame_rate=1.0 / dt,
-                channels={j.name: j.channels for j in joints}, rest_pose=rest,
+                channels={j.name: j.channels for j in joints}, rest_pose=rest, missing_frames=missing,
                 # the bones: each joint's parent and OFFSET (m, torchik's axes), what builds a subject's model
                 skeleton=dict(format="bvh", parents={j.name: names[j.parent] if j.parent >= 0 else None for j in joints},
                               offsets={j.name: (to_world @ j.offset * scale).tolist() for j in joints}),

@@ -22,7 +22,7 @@ import torch
 
 from ..errors import optional
 from ..method import so3
-from .recording import Recording, RecordingError, angular_velocity_from_orientations
+from .recording import Recording, RecordingError, angular_velocity_from_orientations, readable_file
 
 PLUG_IN_GAIT = ("PEL", "TRX", "HED", "LCL", "LHU", "LRA", "LHN", "RCL", "RHU", "RRA", "RHN",
                 "LFE", "LTI", "LFO", "LTO", "RFE", "RTI", "RFO", "RTO")
@@ -74,12 +74,33 @@ def _plug_in_gait_skeleton(parameters, xyz: np.ndarray, valid: np.ndarray, index
                 lengths=lengths)
 
 
+def _declared_frames(path: Path, parameters: dict) -> int | None:
+    """The frame count the file's header declares (None when it cannot say). ezc3d rewrites its
+    parsed header from the frames it could read, so a cut file looks whole there: the raw header's
+    first and last frame words are read instead (byte order from the parameter block's processor
+    type: 86 is MIPS, big-endian; Intel and DEC are little-endian)."""
+    with open(path, "rb") as f:
+        header = f.read(512)
+        if len(header) < 512:
+            return None
+        f.seek(max(header[0] - 1, 0) * 512 + 3)  # byte 0: the parameter block's number, from 1
+        processor = f.read(1)
+    if not processor:
+        return None
+    order = ">" if processor[0] == 86 else "<"
+    first, last = np.frombuffer(header[6:10], dtype=f"{order}u2").tolist()
+    if last == 0xFFFF:  # more frames than a header word holds: TRIAL:ACTUAL_END_FIELD has the last (low, high)
+        words = list(np.asarray(parameters.get("TRIAL", {}).get("ACTUAL_END_FIELD", {}).get("value", [])).ravel())
+        if len(words) < 2:
+            return None
+        last = int(words[0]) % 65536 + int(words[1]) % 65536 * 65536
+    return last - first + 1 if last >= first else None
+
+
 def read_c3d(path: str | Path, base_link: str = "PEL", units: str | None = None) -> Recording:
     """Read the Plug-in Gait segments of a C3D file. units: 'mm', 'cm' or 'm' when the file's POINT:UNITS
     is missing or wrong. RecordingError names the file and the problem."""
-    path = Path(path)
-    if not path.is_file():
-        raise RecordingError(f"{path}: no such file")
+    path = readable_file(path)
     ezc3d = optional("ezc3d", "io", "reading C3D files")
     try:
         c3d = ezc3d.c3d(str(path), extract_forceplat_data=False)
@@ -88,6 +109,10 @@ def read_c3d(path: str | Path, base_link: str = "PEL", units: str | None = None)
     parameters = c3d["parameters"]["POINT"]
     labels = _labels(parameters)
     points = c3d["data"]["points"]  # [4, P, T]
+    declared_frames = _declared_frames(path, c3d["parameters"])
+    if declared_frames is not None and points.shape[2] != declared_frames:
+        raise RecordingError(f"{path}: truncated: the header declares {declared_frames} frames, the file holds "
+                             f"{points.shape[2]}")
     if points.shape[1] != len(labels):
         raise RecordingError(f"{path}: {points.shape[1]} points but {len(labels)} labels")
     declared = list(parameters.get("UNITS", {}).get("value", []))

@@ -7,13 +7,15 @@ from pathlib import Path
 from .bvh import read_bvh
 from .c3d import read_c3d
 from .mvnx import read_mvnx
-from .recording import Recording, RecordingError, load_recording
+from .recording import Recording, RecordingError, load_recording, readable_file
 
 READERS = {".npz": load_recording, ".mvnx": read_mvnx, ".bvh": read_bvh, ".c3d": read_c3d}
 
 
 def read(path: str | Path) -> Recording:
     """A Recording from any supported file (.npz, .mvnx, .bvh, .c3d), by its suffix."""
+    if Path(path).is_dir():
+        readable_file(path)  # raises, naming it a folder whatever its suffix
     suffix = Path(path).suffix.lower()
     if suffix not in READERS:
         raise RecordingError(f"{path}: unsupported format {suffix!r}; supported: {', '.join(READERS)}")

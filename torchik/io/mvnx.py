@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from ..method import so3
-from .recording import Recording, RecordingError
+from .recording import Recording, RecordingError, readable_file
 
 FIELDS = ("orientation", "angularVelocity", "position", "velocity")
 WIDTH = {"orientation": 4, "angularVelocity": 3, "position": 3, "velocity": 3}
@@ -53,9 +53,7 @@ def _points(segment: ET.Element, where: str) -> dict[str, list[float]]:
 
 def read_mvnx(path: str | Path, base_link: str = "Pelvis") -> Recording:
     """Read an MVNX file. Raises RecordingError naming the file and the frame or line at fault."""
-    path = Path(path)
-    if not path.is_file():
-        raise RecordingError(f"{path}: no such file")
+    path = readable_file(path)
     segments: list[str] = []
     frame_rate, version, subject = None, None, {}
     times: list[float] = []

@@ -23,6 +23,7 @@ segments concerned: marked, never filled with made-up values.
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,7 @@ import torch
 
 from ..errors import InputError
 from ..method import so3
+from ..method.targets import PROJECT_TOLERANCE
 
 
 class RecordingError(InputError):
@@ -98,7 +100,7 @@ def validate(rec: Recording, where: str = "recording") -> None:
     steps = np.diff(rec.time)
     if np.any(steps <= 0):
         k = int(np.argmax(steps <= 0)) + 1
-        fail(f"time must be strictly increasing: frame {k} at {rec.time[k]!r} s follows {rec.time[k - 1]!r} s")
+        fail(f"time must be strictly increasing: frame {k} at {float(rec.time[k])} s follows {float(rec.time[k - 1])} s")
     if len(set(rec.links)) != n:
         fail(f"duplicate link names in {list(rec.links)}")
     if rec.base_link not in rec.links:
@@ -108,10 +110,12 @@ def validate(rec: Recording, where: str = "recording") -> None:
     if np.isinf(R).any() or np.isinf(rec.angular_velocity).any():
         fail("orientation or angular_velocity holds Inf (use NaN to mark missing data)")
     if known.any():
+        # the tracker projects rotations this close to SO(3) (noise, float32 exports) and counts them
         Rk = R[known]
-        error = np.abs(np.swapaxes(Rk, -1, -2) @ Rk - np.eye(3)).max(axis=(-1, -2))
-        det = np.linalg.det(Rk)
-        bad = (error > 1e-6) | (det < 0)
+        with np.errstate(over="ignore", invalid="ignore"):  # huge entries: an infinite error, refused below
+            error = np.linalg.norm(np.swapaxes(Rk, -1, -2) @ Rk - np.eye(3), axis=(-1, -2))
+            det = np.linalg.det(Rk)
+        bad = (error > PROJECT_TOLERANCE) | (det < 0)
         if bad.any():
             t, i = np.argwhere(known)[int(np.argmax(bad))]
             fail(f"orientation of {rec.links[i]!r} at frame {t} is not a rotation (||R^T R - I|| = "
@@ -149,11 +153,22 @@ def save_recording(rec: Recording, path: str | Path) -> Path:
 REQUIRED = ("time", "links", "orientation", "angular_velocity", "base_link", "base_position", "base_linear_velocity")
 
 
+def readable_file(path: str | Path) -> Path:
+    """`path` as a Path when it is a file to read; RecordingError saying what it is otherwise."""
+    path = Path(path)
+    if path.is_dir():
+        raise RecordingError(f"{path}: is a folder; give a recording file")
+    if not path.is_file():
+        raise RecordingError(f"{path}: no such file" if not path.exists() else f"{path}: not a regular file")
+    return path
+
+
 def load_recording(path: str | Path) -> Recording:
     """Read and validate a recording; RecordingError naming the file and the problem."""
-    path = Path(path)
-    if not path.is_file():
-        raise RecordingError(f"{path}: no such file")
+    path = readable_file(path)
+    if not zipfile.is_zipfile(path):  # np.load takes any other bytes for a pickle, which it refuses
+        raise RecordingError(f"{path}: not a torchik recording (.npz, a zip archive of arrays); "
+                             "is it another format under the wrong suffix?")
     try:
         with np.load(path, allow_pickle=False) as data:
             contents = {k: data[k] for k in data.files}

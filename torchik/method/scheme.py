@@ -67,6 +67,16 @@ class SchemeHistory:
         self.last_dt: float | torch.Tensor = self.nominal_dt
         self.velocity_slope = torch.zeros(0) if velocity is None else torch.zeros_like(velocity)
 
+    def forget(self, subjects: torch.Tensor, previous: bool) -> None:
+        """Subjects [B] bool restarted: their velocity slope is zero and the targets two steps back
+        (and one step back too, with `previous`) are replaced by the next ones, as dropped targets are."""
+        self.velocity_slope = None if self.velocity_slope is None else \
+            torch.where(subjects[:, None], 0.0, self.velocity_slope)
+        if previous and self._previous is not None:
+            self._previous_valid = _keep_valid(self._previous_valid, self._previous, subjects)
+        if self._before is not None:
+            self._before_valid = _keep_valid(self._before_valid, self._before, subjects)
+
     def evaluate(self, q: State, R_B: torch.Tensor, clean: CleanTargets, dt: "float | torch.Tensor",
                  positions: bool) -> Evaluation:
         """The step's Evaluation from the state q (base rotation R_B orthonormalised), the cleaned
@@ -127,6 +137,15 @@ class SchemeHistory:
             return v if before is None else axpy(v, w_before, getattr(before, name))
 
         return mean("linear_velocity"), mean("angular_velocity")
+
+
+def _keep_valid(valid, targets: Targets, dropped: torch.Tensor):
+    """The (position [B,n_p], orientation [B,n_o]) validity of remembered `targets` with every target
+    of the dropped [B] subjects marked invalid."""
+    if valid is None:
+        valid = (torch.ones(targets.position.shape[:2], dtype=torch.bool, device=dropped.device),
+                 torch.ones(targets.rotation.shape[:2], dtype=torch.bool, device=dropped.device))
+    return tuple(v & ~dropped[:, None] for v in valid)
 
 
 def _substitute(old: Targets, old_valid, current: Targets) -> Targets:

@@ -17,7 +17,8 @@ class TrackerSettings:
     time step (s); scheme: 'midpoint' (second order) or 'paper' (the paper's literal law);
     rotation_integrator: 'baumgarte' (rho: baumgarte_gain, 1/s) or 'exp'; damping: lambda of
     ||nu||^2; limits: the joint limits' velocity bounds; backend: the QP solver, 'auto' (batched
-    for a batch or on CUDA, else PIQP), 'piqp' or 'batched'.
+    for a batch or on CUDA, else PIQP), 'piqp' or 'batched'; max_gap: a time step longer than this
+    many nominal steps is a gap, after which the tracker restarts from the targets (a new segment).
     """
 
     position_gain: float = 20.0
@@ -29,3 +30,4 @@ class TrackerSettings:
     damping: float = 1e-9
     limits: LimitSettings = field(default_factory=LimitSettings)
     backend: str = "auto"
+    max_gap: float = 5.0

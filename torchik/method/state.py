@@ -34,6 +34,9 @@ class StepDiagnostics:
     active_constraints: [B] bounds and linear limits active in the QP's solution;
     solved: [B] False where the QP failed and the clipped fallback was used;
     dropped: [B] non-finite targets dropped; projected: [B] target rotations projected onto SO(3);
+    failed: [B] True where the step's state broke the invariant (not finite, rotation not orthonormal,
+    joints beyond their limits) and the subject restarted from the step's targets;
+    new_segment: [B] True where a gap in time longer than max_gap steps restarted the subject;
     step_time: seconds for the whole batch, of which kinematics_time (the kinematics calls) and
     qp_time (the QP backend's solve).
     """
@@ -44,12 +47,15 @@ class StepDiagnostics:
     solved: torch.Tensor
     dropped: torch.Tensor
     projected: torch.Tensor
+    failed: torch.Tensor
+    new_segment: torch.Tensor
     step_time: float
     kinematics_time: float = 0.0
     qp_time: float = 0.0
 
 
-PER_SUBJECT = ("mnte", "residual_norm", "active_constraints", "solved", "dropped", "projected")  # [B] each step
+PER_SUBJECT = ("mnte", "residual_norm", "active_constraints", "solved", "dropped", "projected", "failed",
+               "new_segment")  # [B] each step
 PER_BATCH = ("step_time", "kinematics_time", "qp_time")  # seconds, one per step
 
 
@@ -75,7 +81,7 @@ class Trajectory:
     """A tracked sequence: time [T]; base_position [T,B,3]; base_rotation [T,B,3,3];
     joint_positions [T,B,n]; velocity [T,B,6+n]; the step diagnostics stacked over time
     (mnte [T,B], residual_norm [T,B,n_t], active_constraints [T,B], solved [T,B], dropped [T,B],
-    projected [T,B], step_time [T], kinematics_time [T], qp_time [T]); interrupted: the run
+    projected [T,B], failed [T,B], new_segment [T,B], step_time [T], kinematics_time [T], qp_time [T]); interrupted: the run
     was stopped (Ctrl-C) before the end of its targets."""
 
     time: torch.Tensor
@@ -87,6 +93,11 @@ class Trajectory:
     interrupted: bool = False
 
     @classmethod
+    def preallocated(cls, time: torch.Tensor, state: State, diagnostics: StepDiagnostics) -> "TrajectoryBuffer":
+        """A buffer for a run of len(time) steps shaped as this first step's state and diagnostics."""
+        return TrajectoryBuffer(time, state, diagnostics)
+
+    @classmethod
     def from_steps(cls, time: torch.Tensor, states: list[State], diagnostics: list[StepDiagnostics],
                    interrupted: bool = False) -> "Trajectory":
         """The trajectory of a run's steps: time [T], one State and StepDiagnostics per step."""
@@ -96,3 +107,37 @@ class Trajectory:
             stacked[name] = torch.tensor([getattr(d, name) for d in diagnostics], dtype=torch.float64)
         return cls(time, stack(states, "base_position"), stack(states, "base_rotation"),
                    stack(states, "joint_positions"), stack(states, "velocity"), stacked, interrupted)
+
+
+class TrajectoryBuffer:
+    """A run's trajectory filled step by step into tensors allocated once ([T,...] per field): memory
+    is the trajectory's size, not a few tensor objects per step (which, for an hour at 100 Hz, weigh
+    several times the numbers they hold)."""
+
+    def __init__(self, time: torch.Tensor, state: State, diagnostics: StepDiagnostics):
+        T = time.shape[0]
+        empty = lambda x: x.new_empty((T, *x.shape))  # noqa: E731
+        self.time = time
+        self.states = {name: empty(x) for name, x in vars(state).items()}
+        self.per_subject = {name: empty(getattr(diagnostics, name)) for name in PER_SUBJECT}
+        self.per_batch = {name: torch.empty(T, dtype=torch.float64) for name in PER_BATCH}
+        self.done = 0
+
+    def put(self, state: State, diagnostics: StepDiagnostics) -> None:
+        """Append a step."""
+        k = self.done
+        for name, x in vars(state).items():
+            self.states[name][k] = x
+        for name in PER_SUBJECT:
+            self.per_subject[name][k] = getattr(diagnostics, name)
+        for name in PER_BATCH:
+            self.per_batch[name][k] = getattr(diagnostics, name)
+        self.done += 1
+
+    def trajectory(self, interrupted: bool = False) -> Trajectory:
+        """The steps put so far as a Trajectory (views of the buffers)."""
+        done = slice(0, self.done)
+        diagnostics = {name: x[done] for name, x in {**self.per_subject, **self.per_batch}.items()}
+        s = {name: x[done] for name, x in self.states.items()}
+        return Trajectory(self.time[done], s["base_position"], s["base_rotation"], s["joint_positions"], s["velocity"],
+                          diagnostics, interrupted)

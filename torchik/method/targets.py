@@ -71,7 +71,11 @@ def check_targets(targets: Targets, n_position: int, n_orientation: int, dtype: 
             raise InputError(f"targets.{name}: expected {dtype} on {device}, got {t.dtype} on {t.device}")
 
 
-def clean_targets(targets: Targets, project_tolerance: float = 1e-2, orthonormal_tolerance: float = 1e-9) -> CleanTargets:
+PROJECT_TOLERANCE = 1e-2  # ||R^T R - I|| (Frobenius) up to which a target rotation is projected onto SO(3)
+
+
+def clean_targets(targets: Targets, project_tolerance: float = PROJECT_TOLERANCE,
+                  orthonormal_tolerance: float = 1e-9) -> CleanTargets:
     """Drop non-finite targets for this step and project nearly orthonormal rotations onto SO(3).
 
     A rotation with `||R^T R - I|| > project_tolerance` (Frobenius) is not a rotation that noise

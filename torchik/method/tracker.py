@@ -13,7 +13,13 @@ Each step, for a batch of B subjects, is the method read top to bottom (`Dynamic
 5. the objective ||v* - J nu||^2 + lambda ||nu||^2 as normal equations (`task.py`);
 6. bounds: the joint limits as velocity bounds, coupled limits as rows A s_dot <= h (`limits.py`);
 7. the QP (`qp/`);
-8. integration of the configuration from nu over dt (`integrate.py`).
+8. integration of the configuration from nu over dt (`integrate.py`);
+9. the invariant (`_check_invariant`): every state the step returns is finite, its base rotation
+   orthonormal to 1e-12 and its joints within their limits; a subject whose state breaks it
+   restarts from the step's targets (as `initial_state`), its step marked failed.
+
+A time step longer than `settings.max_gap` nominal steps (a suit that dropped out, a stream that
+stalled) is not integrated: the subject restarts from the targets after the gap, a new segment.
 
 Diagnostics: mnte compares the state at the start of the step with the targets at that instant;
 residual_norm is the residual the step used (against x(t_k) in the paper's scheme).
@@ -22,6 +28,7 @@ residual_norm is the residual the step used (against x(t_k) in the paper's schem
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 import warnings
 from typing import NamedTuple, Sequence, TypeVar
@@ -29,6 +36,7 @@ from typing import NamedTuple, Sequence, TypeVar
 import torch
 
 from ..errors import InputError
+from . import so3
 from .integrate import ROTATION_INTEGRATORS, integrate, orthonormalize
 from .kinematics import KinematicModel, LinkKinematics
 from .limits import LinearRows, linear_limit_bounds, velocity_bounds
@@ -37,7 +45,7 @@ from .qp import BACKENDS, QPBackend, QPProblem, TreeHessian, make_backend
 from .residual import corrected_velocity, orientation_residual, position_residual
 from .scheme import Evaluation, SchemeHistory
 from .settings import SCHEMES, TrackerSettings
-from .state import State, StepDiagnostics, TargetSequence, Trajectory
+from .state import State, StepDiagnostics, TargetSequence, Trajectory, TrajectoryBuffer
 from .structure import BatchSetup, StepStructure
 from .targets import Targets, check_targets, clean_targets
 from .task import Objective, normal_equations
@@ -122,6 +130,7 @@ class DynamicalIK:
         self._history.reset(state.velocity)
         self.backend = self._backend_for(B)
         self._batch = BatchSetup.build(self.model, self.structure, self.settings, self.backend, B)
+        self._no_restart = torch.zeros(B, dtype=torch.bool, device=state.base_position.device)
         return self.state
 
     @property
@@ -151,6 +160,10 @@ class DynamicalIK:
         assert batch is not None and self._rotation is not None  # set with the state by reset()
         self._check_targets(targets, batch)
         dt = self._time_step(dt, batch.size)
+        new_segment = self._no_restart
+        if isinstance(dt, torch.Tensor):
+            dt, new_segment = self._split_at_gaps(dt, targets)
+            q = self._require_state()
         clean = clean_targets(targets)
         at = self._history.evaluate(q, self._rotation, clean, dt, positions=not structure.rotations_only)
 
@@ -182,6 +195,10 @@ class DynamicalIK:
         self._history.advance(nu, q.velocity, dt)
         self._state = State(p_next, R_next, s_next, nu)
         self._rotation = orthonormalize(R_next)
+        failed = self._check_invariant(q)
+        if failed is not self._no_restart:
+            self._restart(failed, targets)
+            self._history.forget(failed, previous=False)  # x_k, which it restarted from, stays
 
         error = orientation_error(at.start_targets.rotation, kin.rotation,
                                   r_o if at.start_targets is at.residual_targets else None)  # [B,n_o]
@@ -194,11 +211,50 @@ class DynamicalIK:
             solved=solution.solved,
             dropped=clean.dropped,
             projected=clean.projected,
+            failed=failed,
+            new_segment=new_segment,
             step_time=time.perf_counter() - start,
             kinematics_time=kinematics_time,
             qp_time=qp_time,
         )
         return self.state, diagnostics
+
+    def _check_invariant(self, before: State) -> torch.Tensor:
+        """[B] bool: the subjects whose new state is not finite, whose base rotation is not orthonormal
+        to ROTATION_TOLERANCE, or whose joints went further beyond a limit than LIMIT_TOLERANCE (a state
+        given outside its limits is pulled in, not failed). The shared all-False tensor when none is:
+        then one number leaves the device, NaN and Inf propagating through its sums."""
+        state, R, model = self._require_state(), self._rotation, self.model
+        assert R is not None  # set with the state
+        deviation = (R.transpose(-1, -2) @ R - so3.identity(R.dtype, R.device)).abs().flatten(1).amax(-1)  # [B]
+        outward = _beyond_limits(state.joint_positions, model.lower, model.upper) - \
+            _beyond_limits(before.joint_positions, model.lower, model.upper)  # [B,n]
+        furthest = outward.amax(-1) if outward.shape[-1] else torch.zeros_like(deviation)  # [B]
+        measure = torch.maximum(deviation / ROTATION_TOLERANCE, furthest / LIMIT_TOLERANCE)
+        # alpha 0 keeps NaN and Inf of any value in the state (0 * Inf is NaN)
+        values = torch.cat((state.base_position, state.joint_positions, state.velocity), dim=1).sum(-1)
+        measure = torch.add(measure, values, alpha=0.0)  # [B]
+        if float(measure.amax()) <= 1.0:  # False for NaN
+            return self._no_restart
+        return ~(measure <= 1.0)
+
+    def _split_at_gaps(self, dt: torch.Tensor, targets: Targets) -> tuple[torch.Tensor, torch.Tensor]:
+        """dt [B,1] with the gaps longer than max_gap nominal steps replaced by the nominal step, the
+        subjects they belong to restarted from `targets`; and the [B] bool of those subjects."""
+        nominal = self._history.nominal_dt
+        gap = dt[:, 0] > self.settings.max_gap * nominal  # [B]
+        if not bool(gap.any()):
+            return dt, self._no_restart
+        self._restart(gap, targets)
+        self._history.forget(gap, previous=True)  # the targets before the gap say nothing of those after
+        return torch.where(gap[:, None], torch.full_like(dt, nominal), dt), gap
+
+    def _restart(self, subjects: torch.Tensor, targets: Targets) -> None:
+        """Subjects [B] bool start again from `initial_state(targets)`, at rest."""
+        fresh, q = self.initial_state(targets), self._require_state()
+        pick = lambda new, old: torch.where(subjects.view(-1, *(1,) * (old.dim() - 1)), new, old)  # noqa: E731
+        self._state = State(*(pick(new, old) for new, old in zip(vars(fresh).values(), vars(q).values())))
+        self._rotation = pick(fresh.base_rotation, self._rotation)
 
     def _kinematics(self, q: State, at: Evaluation, batch: BatchSetup) -> StepKinematics:
         """The target links' rotations and positions at the state (q, its orthonormalised base
@@ -323,34 +379,37 @@ class DynamicalIK:
             from tqdm import tqdm
 
             bar = tqdm(total=T, desc="tracking", unit="step", leave=False, delay=1.0)
-        states: list[State] = []
-        diagnostics: list[StepDiagnostics] = []
+        buffer: TrajectoryBuffer | None = None
         interrupted = False
         try:
             for k in range(T):
-                state, diagnostic = self.step(sequence[k], time_steps[k])
-                states.append(state)  # the tracker replaces its state every step: these stay valid
-                diagnostics.append(diagnostic)
+                state, diagnostic = self.step(sequence[k], time_steps(k))
+                if buffer is None:
+                    buffer = Trajectory.preallocated(sequence.time, state, diagnostic)
+                buffer.put(state, diagnostic)
                 if bar is not None:
                     bar.update()
         except KeyboardInterrupt:
-            if not interruptible or not states:
+            if not interruptible or buffer is None:
                 raise
             interrupted = True
         finally:
             if bar is not None:
                 bar.close()
-        return Trajectory.from_steps(sequence.time[:len(states)], states, diagnostics, interrupted)
+        assert buffer is not None  # T > 0 steps were taken, or the interrupt rose
+        return buffer.trajectory(interrupted)
 
-    def _time_steps(self, time_: torch.Tensor, B: int) -> list:
-        """Each step's dt for `run`: None (the nominal dt, which the step uses without checks or tensor
-        arithmetic) where the timestamps' gap is the nominal one to their rounding, else the gap [B]."""
+    def _time_steps(self, time_: torch.Tensor, B: int):
+        """Step k's dt for `run`, a function of k: None (the nominal dt, which the step uses without
+        checks or tensor arithmetic) where the timestamps' gap is the nominal one to their rounding,
+        else the gap [B] (made when asked: a tensor per step held for the whole run would weigh more
+        than the trajectory)."""
         T = len(time_)
         gaps = (time_[1:] - time_[:-1]).to(self.model.dtype)
         rounding = 64 * torch.finfo(time_.dtype).eps * float(time_.abs().max()) if T > 1 else 0.0
         nominal = [True] + ((gaps - self.dt).abs() <= rounding).tolist()
-        gaps = gaps.to(self.model.device)[:, None].expand(-1, B)
-        return [None if nominal[k] else gaps[k - 1] for k in range(T)]
+        gaps = gaps.to(self.model.device)
+        return lambda k: None if nominal[k] else gaps[k - 1].expand(B)
 
 
 def _check_settings(settings: TrackerSettings) -> None:
@@ -359,10 +418,21 @@ def _check_settings(settings: TrackerSettings) -> None:
     if settings.rotation_integrator not in ROTATION_INTEGRATORS:
         raise InputError(f"unknown rotation integrator {settings.rotation_integrator!r}; "
                          f"valid: {', '.join(ROTATION_INTEGRATORS)}")
-    if not settings.dt > 0:
-        raise InputError(f"dt must be positive, got {settings.dt}")
+    if not 0 < settings.dt < math.inf:
+        raise InputError(f"dt must be positive and finite, got {settings.dt}")
+    if not 1 < settings.max_gap:  # NaN too; inf: no gap ever restarts
+        raise InputError(f"max_gap must be above 1 nominal step, got {settings.max_gap}")
     if isinstance(settings.backend, str) and settings.backend != "auto" and settings.backend not in BACKENDS:
         raise InputError(f"unknown QP backend {settings.backend!r}; valid: auto, {', '.join(BACKENDS)}")
+
+
+ROTATION_TOLERANCE = 1e-12  # max |R^T R - I| of a returned base rotation
+LIMIT_TOLERANCE = 1e-6  # rad or m a joint may go further beyond its limit in a step (the QP's tolerance)
+
+
+def _beyond_limits(s: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor) -> torch.Tensor:
+    """How far joints s [B,n] are outside [lower, upper] ([n] or [B,n]); 0 inside. [B,n]"""
+    return (lower - s).clamp(min=0.0) + (s - upper).clamp(min=0.0)
 
 
 def _mean_over(values: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
