@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
+from ..errors import InputError
 from .limits import LimitSettings
 
 SCHEMES = {"midpoint": 2.0, "paper": 2.0}  # discretisation -> linear stability bound on K dt
@@ -31,3 +33,21 @@ class TrackerSettings:
     limits: LimitSettings = field(default_factory=LimitSettings)
     backend: str = "auto"
     max_gap: float = 5.0
+
+
+def check_settings(settings: TrackerSettings) -> None:
+    """InputError naming the first setting a tracker cannot run with."""
+    from .integrate import ROTATION_INTEGRATORS  # the registries live beside what they register
+    from .qp import BACKENDS
+
+    if settings.scheme not in SCHEMES:
+        raise InputError(f"unknown scheme {settings.scheme!r}; valid: {', '.join(SCHEMES)}")
+    if settings.rotation_integrator not in ROTATION_INTEGRATORS:
+        raise InputError(f"unknown rotation integrator {settings.rotation_integrator!r}; "
+                         f"valid: {', '.join(ROTATION_INTEGRATORS)}")
+    if not 0 < settings.dt < math.inf:
+        raise InputError(f"dt must be positive and finite, got {settings.dt}")
+    if not 1 < settings.max_gap:  # NaN too; inf: no gap ever restarts
+        raise InputError(f"max_gap must be above 1 nominal step, got {settings.max_gap}")
+    if isinstance(settings.backend, str) and settings.backend != "auto" and settings.backend not in BACKENDS:
+        raise InputError(f"unknown QP backend {settings.backend!r}; valid: auto, {', '.join(BACKENDS)}")

@@ -14,7 +14,7 @@ Each step, for a batch of B subjects, is the method read top to bottom (`Dynamic
 6. bounds: the joint limits as velocity bounds, coupled limits as rows A s_dot <= h (`limits.py`);
 7. the QP (`qp/`);
 8. integration of the configuration from nu over dt (`integrate.py`);
-9. the invariant (`_check_invariant`): every state the step returns is finite, its base rotation
+9. the invariant (`invariant.py`): every state the step returns is finite, its base rotation
    orthonormal to 1e-12 and its joints within their limits; a subject whose state breaks it
    restarts from the step's targets (as `initial_state`), its step marked failed.
 
@@ -28,40 +28,27 @@ residual_norm is the residual the step used (against x(t_k) in the paper's schem
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 import warnings
-from typing import NamedTuple, Sequence, TypeVar
+from typing import Sequence
 
 import torch
 
 from ..errors import InputError
-from . import so3
-from .integrate import ROTATION_INTEGRATORS, integrate, orthonormalize
-from .kinematics import KinematicModel, LinkKinematics
+from .integrate import integrate, orthonormalize
+from .invariant import broken_subjects
+from .kinematics import KinematicModel
 from .limits import LinearRows, linear_limit_bounds, velocity_bounds
 from .metrics import orientation_error
-from .qp import BACKENDS, QPBackend, QPProblem, TreeHessian, make_backend
+from .qp import QPBackend, QPProblem, TreeHessian, make_backend
 from .residual import corrected_velocity, orientation_residual, position_residual
 from .scheme import Evaluation, SchemeHistory
-from .settings import SCHEMES, TrackerSettings
+from .settings import SCHEMES, TrackerSettings, check_settings
 from .state import State, StepDiagnostics, TargetSequence, Trajectory, TrajectoryBuffer
+from .step_kinematics import StepKinematics, given, step_kinematics
 from .structure import BatchSetup, StepStructure
 from .targets import Targets, check_targets, clean_targets
 from .task import Objective, normal_equations
-
-_T = TypeVar("_T")
-
-
-class StepKinematics(NamedTuple):
-    """What a step needs of the kinematics: rotation [B,n_o,3,3] and position [B,n_p,3] (or the base
-    position [B,1,3], which broadcasts) of the target links at the state; joint_axes [B,n,3] and the
-    Jacobians of the position links off the base [B,n_j,6,6+n] (or None) where the task is linearised."""
-
-    rotation: torch.Tensor
-    position: torch.Tensor
-    joint_axes: torch.Tensor
-    position_jacobian: torch.Tensor | None
 
 
 class DynamicalIK:
@@ -81,7 +68,7 @@ class DynamicalIK:
         except TypeError:
             valid = ", ".join(f.name for f in dataclasses.fields(TrackerSettings))
             raise InputError(f"unknown tracker setting among {sorted(changes)}; valid: {valid}") from None
-        _check_settings(settings)
+        check_settings(settings)
         self.model, self.settings = model, settings
         self.position_links = tuple(position_links if position_links is not None else (model.base_link,))
         self.orientation_links = tuple(orientation_links)
@@ -220,23 +207,12 @@ class DynamicalIK:
         return self.state, diagnostics
 
     def _check_invariant(self, before: State) -> torch.Tensor:
-        """[B] bool: the subjects whose new state is not finite, whose base rotation is not orthonormal
-        to ROTATION_TOLERANCE, or whose joints went further beyond a limit than LIMIT_TOLERANCE (a state
-        given outside its limits is pulled in, not failed). The shared all-False tensor when none is:
-        then one number leaves the device, NaN and Inf propagating through its sums."""
-        state, R, model = self._require_state(), self._rotation, self.model
+        """[B] bool: the subjects whose new state breaks the invariant (`invariant.py`); the shared
+        all-False tensor when none does."""
+        R = self._rotation
         assert R is not None  # set with the state
-        deviation = (R.transpose(-1, -2) @ R - so3.identity(R.dtype, R.device)).abs().flatten(1).amax(-1)  # [B]
-        outward = _beyond_limits(state.joint_positions, model.lower, model.upper) - \
-            _beyond_limits(before.joint_positions, model.lower, model.upper)  # [B,n]
-        furthest = outward.amax(-1) if outward.shape[-1] else torch.zeros_like(deviation)  # [B]
-        measure = torch.maximum(deviation / ROTATION_TOLERANCE, furthest / LIMIT_TOLERANCE)
-        # alpha 0 keeps NaN and Inf of any value in the state (0 * Inf is NaN)
-        values = torch.cat((state.base_position, state.joint_positions, state.velocity), dim=1).sum(-1)
-        measure = torch.add(measure, values, alpha=0.0)  # [B]
-        if float(measure.amax()) <= 1.0:  # False for NaN
-            return self._no_restart
-        return ~(measure <= 1.0)
+        broken = broken_subjects(self._require_state(), R, before.joint_positions, self.model.lower, self.model.upper)
+        return self._no_restart if broken is None else broken
 
     def _split_at_gaps(self, dt: torch.Tensor, targets: Targets) -> tuple[torch.Tensor, torch.Tensor]:
         """dt [B,1] with the gaps longer than max_gap nominal steps replaced by the nominal step, the
@@ -257,47 +233,9 @@ class DynamicalIK:
         self._rotation = pick(fresh.base_rotation, self._rotation)
 
     def _kinematics(self, q: State, at: Evaluation, batch: BatchSetup) -> StepKinematics:
-        """The target links' rotations and positions at the state (q, its orthonormalised base
-        rotation), and the joints' world axes and position Jacobians at `at`'s configuration (the
-        same in the paper's scheme). Small batches cost per operation, not per row: both
-        configurations then go in one call."""
-        model, structure, B, R_B = self.model, self.structure, batch.size, self._rotation
-        assert R_B is not None
-        paper, stacked = self.settings.scheme == "paper", self.settings.scheme == "midpoint" and batch.stacked
-        if structure.rotations_only:  # orientation targets and the base's position: no positions, no Jacobians
-            p_hat, links = q.base_position.unsqueeze(1), structure.orientation_selection
-            assert links is not None  # rotations_only: there are orientation targets
-            if paper:
-                now = model.rotations(R_B, q.joint_positions, links, joint_axes=True)
-                return StepKinematics(now.rotation, p_hat, _given(now.joint_axes), None)
-            if stacked:
-                both = model.rotations(torch.cat((R_B, at.base_rotation)),
-                                       torch.cat((q.joint_positions, at.joint_positions)), links, joint_axes=True)
-                return StepKinematics(both.rotation[:B], p_hat, _given(both.joint_axes)[B:], None)
-            mid_axes = model.rotations(at.base_rotation, at.joint_positions, links, joint_axes=True).joint_axes
-            return StepKinematics(model.rotations(R_B, q.joint_positions, links).rotation, p_hat, _given(mid_axes), None)
-        # position targets off the base need link positions and their Jacobians
-        jacobian, jacobian_links = structure.task.position is not None, structure.task.position
-        base_position = _given(at.base_position)  # the step asked for positions
-        if paper:
-            now = model(q.base_position, R_B, q.joint_positions, structure.selection, out=batch.buffers,
-                        jacobian=jacobian, jacobian_links=jacobian_links, joint_axes=True)
-            axes, position_jacobian = now.joint_axes, now.jacobian
-        elif stacked:
-            both = model(torch.cat((q.base_position, base_position)), torch.cat((R_B, at.base_rotation)),
-                         torch.cat((q.joint_positions, at.joint_positions)), structure.selection, out=batch.buffers,
-                         jacobian=jacobian, jacobian_links=jacobian_links, joint_axes=True)
-            now = LinkKinematics(both.rotation[:B], _given(both.position)[:B], None)
-            axes = _given(both.joint_axes)[B:]
-            position_jacobian = None if both.jacobian is None else both.jacobian[B:]
-        else:
-            now = model(q.base_position, R_B, q.joint_positions, structure.selection, jacobian=False)
-            mid = model(base_position, at.base_rotation, at.joint_positions, structure.selection, out=batch.buffers,
-                        jacobian=jacobian, jacobian_links=jacobian_links, joint_axes=True)
-            axes, position_jacobian = mid.joint_axes, mid.jacobian
-        return StepKinematics(now.rotation.index_select(1, structure.orientation_index),
-                              _given(now.position).index_select(1, structure.position_index), _given(axes),
-                              position_jacobian)
+        R_B = self._rotation
+        assert R_B is not None  # set with the state
+        return step_kinematics(self.model, self.structure, batch, self.settings.scheme, q, R_B, at)
 
     def _objective(self, kin: StepKinematics, v_p: torch.Tensor, v_o: torch.Tensor,
                    weights: tuple[torch.Tensor | None, torch.Tensor | None],
@@ -307,7 +245,7 @@ class DynamicalIK:
         damping, structure = self.settings.damping, self.structure
         objective = normal_equations(structure.task, kin.joint_axes, kin.position_jacobian, v_p, v_o, damping,
                                      weights[0], weights[1], hessian=not batch.structured)
-        tree = TreeHessian.from_targets(_given(structure.tree), kin.joint_axes, damping, len(self.position_links),
+        tree = TreeHessian.from_targets(given(structure.tree), kin.joint_axes, damping, len(self.position_links),
                                         weights[1], weights[0]) if batch.structured else None
         return objective, tree
 
@@ -412,37 +350,7 @@ class DynamicalIK:
         return lambda k: None if nominal[k] else gaps[k - 1].expand(B)
 
 
-def _check_settings(settings: TrackerSettings) -> None:
-    if settings.scheme not in SCHEMES:
-        raise InputError(f"unknown scheme {settings.scheme!r}; valid: {', '.join(SCHEMES)}")
-    if settings.rotation_integrator not in ROTATION_INTEGRATORS:
-        raise InputError(f"unknown rotation integrator {settings.rotation_integrator!r}; "
-                         f"valid: {', '.join(ROTATION_INTEGRATORS)}")
-    if not 0 < settings.dt < math.inf:
-        raise InputError(f"dt must be positive and finite, got {settings.dt}")
-    if not 1 < settings.max_gap:  # NaN too; inf: no gap ever restarts
-        raise InputError(f"max_gap must be above 1 nominal step, got {settings.max_gap}")
-    if isinstance(settings.backend, str) and settings.backend != "auto" and settings.backend not in BACKENDS:
-        raise InputError(f"unknown QP backend {settings.backend!r}; valid: auto, {', '.join(BACKENDS)}")
-
-
-ROTATION_TOLERANCE = 1e-12  # max |R^T R - I| of a returned base rotation
-LIMIT_TOLERANCE = 1e-6  # rad or m a joint may go further beyond its limit in a step (the QP's tolerance)
-
-
-def _beyond_limits(s: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor) -> torch.Tensor:
-    """How far joints s [B,n] are outside [lower, upper] ([n] or [B,n]); 0 inside. [B,n]"""
-    return (lower - s).clamp(min=0.0) + (s - upper).clamp(min=0.0)
-
-
 def _mean_over(values: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
     """The mean of values [B,n] over the valid [B,n] ones (0 where none is)."""
     weight = valid.to(values.dtype)
     return (values * weight).sum(-1) / weight.sum(-1).clamp(min=1.0)
-
-
-def _given(value: _T | None) -> _T:
-    """value, which the call that made it was asked for (an optional output), or which the batch's
-    setup guarantees (a structured batch's joint tree)."""
-    assert value is not None
-    return value
