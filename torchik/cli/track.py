@@ -102,11 +102,7 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from ..io import map_recording, read, recording_targets, save_trajectory, write_json
-    from ..io.maps import default_map
-    from ..method.models import TRACKED_LINKS, load_model
     from ..pipelines.track import nominal_dt, output_fault, track_recording
-    from ..synthetic.scenarios import scenario
 
     if args.rrd and Path(args.rrd).suffix != ".rrd":
         raise InputError(f"{args.rrd}: a rerun recording's name must end in .rrd (e.g. walk.rrd)")
@@ -121,6 +117,42 @@ def run(args: argparse.Namespace) -> int:
         # one subject's tensors are too small for torch to split, and on a busy machine its idle
         # threads spin and wait for each other: a step then takes several times longer
         torch.set_num_threads(1)
+    model, subject, recording, links, source = _load(args, device)
+    settings = TrackerSettings(position_gain=args.gain if args.position_gain is None else args.position_gain,
+                               orientation_gain=args.gain if args.orientation_gain is None else args.orientation_gain,
+                               scheme=args.scheme, backend=args.backend, max_gap=args.max_gap)
+    _check_stability(settings, nominal_dt(recording, settings))
+    start = time.perf_counter()
+    position_links = None
+    if args.position_targets:
+        position_links = (model.base_link, *[name for name in args.position_targets if name != model.base_link])
+    bounds = Plausibility(max_angular_velocity=args.max_angular_velocity, max_linear_velocity=args.max_linear_velocity)
+    trajectory, report = track_recording(model, recording, links, settings, progress=not args.quiet,
+                                         position_links=position_links, plausibility=bounds)
+    report.update(source=source, device=str(device), wall_time_s=time.perf_counter() - start)
+    if not args.quiet:  # beside a report on standard output, on standard error
+        _print_report(report, source, model.name or Path(model.source).stem,
+                      sys.stderr if args.report == "-" else sys.stdout)
+    fault = output_fault(trajectory, report, args.max_failed)
+    if fault:
+        print(f"torchik track: {fault}", file=sys.stderr)
+        return 1
+    _write_outputs(args, report, trajectory, model, subject, recording, links, position_links)
+    if report["interrupted"]:
+        how = "terminated" if Terminated.received else "interrupted"
+        print(f"torchik track: {how}; the outputs hold the {report['frames']} frames tracked", file=sys.stderr)
+        return 143 if Terminated.received else 130
+    return 0
+
+
+def _load(args: argparse.Namespace, device):
+    """The model (with the subject built from --subject-from, if given), the recording in its links
+    (read and mapped, or a scenario), the tracked links and a phrase naming the source."""
+    from ..io import map_recording, read
+    from ..io.maps import default_map
+    from ..method.models import TRACKED_LINKS, load_model
+    from ..synthetic.scenarios import scenario
+
     if args.subject_from and (args.urdf or args.model == "icub"):
         raise InputError("--subject-from builds a human model: give it with --model human66 or human48, without --urdf")
     subject = subject_from(args.subject_from, args.map, say=(lambda _: None) if args.quiet else print)
@@ -151,25 +183,14 @@ def run(args: argparse.Namespace) -> int:
 
         recording = apply_calibration_file(recording, args.sensor_calibration)
         source += f" with sensor calibration {args.sensor_calibration}"
-    settings = TrackerSettings(position_gain=args.gain if args.position_gain is None else args.position_gain,
-                               orientation_gain=args.gain if args.orientation_gain is None else args.orientation_gain,
-                               scheme=args.scheme, backend=args.backend, max_gap=args.max_gap)
-    _check_stability(settings, nominal_dt(recording, settings))
-    start = time.perf_counter()
-    position_links = None
-    if args.position_targets:
-        position_links = (model.base_link, *[name for name in args.position_targets if name != model.base_link])
-    bounds = Plausibility(max_angular_velocity=args.max_angular_velocity, max_linear_velocity=args.max_linear_velocity)
-    trajectory, report = track_recording(model, recording, links, settings, progress=not args.quiet,
-                                         position_links=position_links, plausibility=bounds)
-    report.update(source=source, device=str(device), wall_time_s=time.perf_counter() - start)
-    if not args.quiet:  # beside a report on standard output, on standard error
-        _print_report(report, source, model.name or Path(model.source).stem,
-                      sys.stderr if args.report == "-" else sys.stdout)
-    fault = output_fault(trajectory, report, args.max_failed)
-    if fault:
-        print(f"torchik track: {fault}", file=sys.stderr)
-        return 1
+    return model, subject, recording, links, source
+
+
+def _write_outputs(args: argparse.Namespace, report: dict, trajectory, model, subject, recording, links,
+                   position_links) -> None:
+    """The report (a file, or - for standard output), the trajectory (--out) and the rerun recording (--rrd)."""
+    from ..io import recording_targets, save_trajectory, write_json
+
     if args.report == "-":
         print(json.dumps(report, indent=2))
     elif args.report:
@@ -184,16 +205,12 @@ def run(args: argparse.Namespace) -> int:
         from ..pipelines.rrd import log_trajectory
 
         start = time.perf_counter()
-        targets = recording_targets(recording, links, dtype=model.dtype, device=model.device)
-        log_trajectory(args.rrd, model, links, trajectory, targets, urdf=args.urdf or model_urdf(args.model, subject),
+        targets = recording_targets(recording, links, position_links, dtype=model.dtype, device=model.device)
+        log_trajectory(args.rrd, model, links, trajectory, targets, position_links=position_links,
+                       urdf=args.urdf or model_urdf(args.model, subject),
                        progress=not args.quiet)
         if not args.quiet:
             print(f"wrote {args.rrd} in {time.perf_counter() - start:.1f} s; open it with: rerun {args.rrd}")
-    if report["interrupted"]:
-        how = "terminated" if Terminated.received else "interrupted"
-        print(f"torchik track: {how}; the outputs hold the {report['frames']} frames tracked", file=sys.stderr)
-        return 143 if Terminated.received else 130
-    return 0
 
 
 def _check_stability(settings: TrackerSettings, dt: float) -> None:
