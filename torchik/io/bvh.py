@@ -59,7 +59,15 @@ def _is_number(text: str) -> bool:
 
 
 def _parse(path: Path) -> tuple[list[_Joint], np.ndarray, float]:
+    """The joints, the motion [T,channels] and the frame time of a BVH file."""
     lines = path.read_text(errors="replace").splitlines()
+    joints, n_channels, k = _hierarchy(path, lines)
+    motion, dt = _motion(path, lines, k, joints, n_channels)
+    return joints, motion, dt
+
+
+def _hierarchy(path: Path, lines: list[str]) -> tuple[list[_Joint], int, int]:
+    """The HIERARCHY section: the joints, their channel count, and the index of the line after MOTION."""
     joints: list[_Joint] = []
     stack: list[int] = []
     n_channels = 0
@@ -132,6 +140,11 @@ def _parse(path: Path) -> tuple[list[_Joint], np.ndarray, float]:
         raise RecordingError(f"{path}: no ROOT joint; is this a BVH file?")
     if stack:
         raise RecordingError(f"{path}: the hierarchy ends with {len(stack)} unclosed joint(s)")
+    return joints, n_channels, k
+
+
+def _motion(path: Path, lines: list[str], k: int, joints: list[_Joint], n_channels: int) -> tuple[np.ndarray, float]:
+    """The MOTION section from line k: the values [T,channels] and the frame time."""
     header: dict[str, Any] = {}  # frames (int), dt (float)
     while k < len(lines) and len(header) < 2:
         text = lines[k].strip()
@@ -163,7 +176,7 @@ def _parse(path: Path) -> tuple[list[_Joint], np.ndarray, float]:
                              f"({joint.name} {joint.channels[column - joint.first_channel]})") from None
     if header["dt"] <= 0:
         raise RecordingError(f"{path}: Frame Time must be positive, got {header['dt']}")
-    return joints, motion, header["dt"]
+    return motion, header["dt"]
 
 
 def _forward_kinematics(joints: list[_Joint], motion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
