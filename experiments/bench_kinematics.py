@@ -24,8 +24,8 @@ import time
 import numpy as np
 import torch
 
-from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.method import so3
+from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.memory import keep_freed_memory
 
 
@@ -94,8 +94,8 @@ def main() -> None:
         s = torch.randn(B, model.n_dof, generator=g, dtype=torch.float64)
         repeats = max(5, min(200, 20000 // B))
         buffers = model.empty_output(B, selection)
-        fresh = median_time(lambda: model(p, R, s, selection), repeats)
-        reused = median_time(lambda: model(p, R, s, selection, out=buffers), repeats)
+        fresh = median_time(lambda p=p, R=R, s=s: model(p, R, s, selection), repeats)
+        reused = median_time(lambda p=p, R=R, s=s, out=buffers: model(p, R, s, selection, out=out), repeats)
         row = dict(batch=B, torchik_ms=fresh * 1e3, torchik_out_ms=reused * 1e3)
         try:
             run, positions = pinocchio_loop(model, links, p, R, s)

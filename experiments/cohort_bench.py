@@ -29,8 +29,8 @@ from torchik.pipelines.cohort import read_manifest, run_cohort, write_synthetic_
 
 def baseline(manifest: Path) -> float:
     """Trials per minute tracking each trial alone, in this process, on one thread."""
-    from torchik.pipelines.cohort.trial import prepare
     from torchik.method.settings import TrackerSettings
+    from torchik.pipelines.cohort.trial import prepare
     from torchik.pipelines.track import track_recording
 
     specs = read_manifest(manifest)

@@ -28,12 +28,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from torchik.io import read
-from torchik.pipelines.diagnosis.loop import Diagnosis, diagnose
-from torchik.pipelines.diagnosis.report import errors_figure, write
-from torchik.io import map_recording
+from torchik.io import map_recording, read
 from torchik.method.kinematics import KinematicModel
 from torchik.method.models import TRACKED_LINKS, human_urdf
+from torchik.pipelines.diagnosis.loop import Diagnosis, diagnose
+from torchik.pipelines.diagnosis.report import errors_figure, write
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 MODELS = ("human48", "human66")
@@ -52,10 +51,14 @@ class Source:
 
 
 SOURCES = (
-    Source("HC002D06", "c3d/HC002D06.c3d", "plugin_gait_to_human", "c3d/HC002D02.c3d", None, "C3D, subject HC002, straight walk"),
-    Source("HC002D25", "c3d/HC002D25.c3d", "plugin_gait_to_human", "c3d/HC002D02.c3d", None, "C3D, subject HC002, turning walk"),
-    Source("HC030A05", "c3d/HC030A05.c3d", "plugin_gait_to_human", "c3d/HC030A01.c3d", None, "C3D, subject HC030, straight walk"),
-    Source("HC030A22", "c3d/HC030A22.c3d", "plugin_gait_to_human", "c3d/HC030A01.c3d", None, "C3D, subject HC030, turning walk"),
+    Source("HC002D06", "c3d/HC002D06.c3d", "plugin_gait_to_human", "c3d/HC002D02.c3d", None,
+           "C3D, subject HC002, straight walk"),
+    Source("HC002D25", "c3d/HC002D25.c3d", "plugin_gait_to_human", "c3d/HC002D02.c3d", None,
+           "C3D, subject HC002, turning walk"),
+    Source("HC030A05", "c3d/HC030A05.c3d", "plugin_gait_to_human", "c3d/HC030A01.c3d", None,
+           "C3D, subject HC030, straight walk"),
+    Source("HC030A22", "c3d/HC030A22.c3d", "plugin_gait_to_human", "c3d/HC030A01.c3d", None,
+           "C3D, subject HC030, turning walk"),
     Source("bandai_walk_1", "bvh/bandai_walk_normal_001.bvh", "bandai_to_human", "bvh/bandai_walk_normal_001.bvh", 0,
            "BVH (Bandai Namco), walk"),
     Source("bandai_walk_2", "bvh/bandai_walk_normal_002.bvh", "bandai_to_human", "bvh/bandai_walk_normal_001.bvh", 0,
@@ -111,7 +114,8 @@ def _g(x: float) -> str:
 def markdown(results: list[dict]) -> str:
     lines = ["# Diagnosis of the measured recordings: results", "",
              "Written by `python experiments/diagnose_measured.py`; read README.md for what they mean.", "",
-             "| recording | model | frames | effects kept | MNTE before → after | ratio | RMSE (rad/s) before → after | time (s) |",
+             "| recording | model | frames | effects kept | MNTE before → after | ratio "
+             "| RMSE (rad/s) before → after | time (s) |",
              "|---|---|---:|---:|---|---:|---|---:|"]
     limit = results[0]["max_effects"] if results else 0
     for r in results:

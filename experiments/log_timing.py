@@ -20,14 +20,14 @@ from pathlib import Path
 
 import torch
 
-from torchik.pipelines.memory import keep_freed_memory
 from torchik.method.models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_model
-from torchik.pipelines.rrd import log_trajectory
-from torchik.synthetic.scenarios import scenario_motion
-from torchik.synthetic.motion import Motion, targets_from_motion
-from torchik.pipelines.evaluation import tracking_errors
-from torchik.method.tracker import DynamicalIK
 from torchik.method.state import TargetSequence
+from torchik.method.tracker import DynamicalIK
+from torchik.pipelines.evaluation import tracking_errors
+from torchik.pipelines.memory import keep_freed_memory
+from torchik.pipelines.rrd import log_trajectory
+from torchik.synthetic.motion import Motion, targets_from_motion
+from torchik.synthetic.scenarios import scenario_motion
 
 
 def walking_targets(model, links, duration: float, rate: float, chunk: int = 2000) -> TargetSequence:

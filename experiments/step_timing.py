@@ -14,10 +14,10 @@ import json
 
 import torch
 
-from torchik.pipelines.memory import keep_freed_memory
 from torchik.method.models import TRACKED_LINKS, load_model
-from torchik.synthetic.motion import periodic_motion, targets_from_motion
 from torchik.method.tracker import DynamicalIK
+from torchik.pipelines.memory import keep_freed_memory
+from torchik.synthetic.motion import periodic_motion, targets_from_motion
 
 
 def main() -> None:
@@ -40,7 +40,8 @@ def main() -> None:
     d = {k: v[100:] for k, v in trajectory.diagnostics.items()}  # the first 100 steps warm up
     rest = d["step_time"] - d["kinematics_time"] - d["qp_time"]
     rows = {"step": d["step_time"], "kinematics": d["kinematics_time"], "qp": d["qp_time"], "rest": rest}
-    result = {name: {"median_ms": float(v.median()) * 1e3, "p99_ms": float(v.quantile(0.99)) * 1e3} for name, v in rows.items()}
+    result = {name: {"median_ms": float(v.median()) * 1e3, "p99_ms": float(v.quantile(0.99)) * 1e3}
+              for name, v in rows.items()}
     print(f"{args.model}, {len(links)} orientation targets + base position, scheme {args.scheme}, "
           f"{args.threads} thread(s), {len(rest)} steps")
     print(f"{'':12s} {'median ms':>10s} {'p99 ms':>10s}")

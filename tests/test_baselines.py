@@ -4,12 +4,12 @@ within the joint and coupled limits, solve a batch's subjects independently, and
 import pytest
 import torch
 
+from torchik.errors import InputError
 from torchik.method import so3
 from torchik.method.baselines import PairwiseIK, WholeBodyIK, central_velocity
-from torchik.errors import InputError
 from torchik.method.models import TRACKED_LINKS, load_model
-from torchik.method.targets import Targets
 from torchik.method.state import State
+from torchik.method.targets import Targets
 
 METHODS = {"whole-body": WholeBodyIK, "pair-wise": PairwiseIK}
 

@@ -2,8 +2,8 @@
 
 import pytest
 
-from torchik.pipelines.bench import run, table
 from torchik.cli import main
+from torchik.pipelines.bench import run, table
 
 
 def test_every_pipeline_runs_and_tracks_the_motion():

@@ -17,7 +17,8 @@ def write_c3d(path, frames=60, rate=100.0, spin=0.5, units="mm", occlude=(), zer
     labels, columns = [], []
     t = np.arange(frames) / rate
     c, s = np.cos(spin * t), np.sin(spin * t)
-    axes = {"A": np.stack((c, s, 0 * t), -1), "L": np.stack((-s, c, 0 * t), -1), "P": np.stack((0 * t, 0 * t, 1 + 0 * t), -1)}
+    axes = {"A": np.stack((c, s, 0 * t), -1), "L": np.stack((-s, c, 0 * t), -1),
+            "P": np.stack((0 * t, 0 * t, 1 + 0 * t), -1)}
     for k, segment in enumerate(segments):
         origin = np.stack((1000.0 * t, 200.0 * k + 0 * t, 900.0 + 0 * t), -1)
         for axis in "OALP":
@@ -75,7 +76,8 @@ def test_bad_files_and_missing_segments_are_errors_that_say_what_is_wrong(tmp_pa
 
 
 @pytest.mark.skipif(not SHARED.is_dir(), reason="../shared/data absent")
-@pytest.mark.parametrize("name", ["HC002D02.c3d", "HC002D06.c3d", "HC002D25.c3d", "HC030A01.c3d", "HC030A05.c3d", "HC030A22.c3d"])
+@pytest.mark.parametrize("name", ["HC002D02.c3d", "HC002D06.c3d", "HC002D25.c3d", "HC030A01.c3d", "HC030A05.c3d",
+                                  "HC030A22.c3d"])
 def test_every_real_c3d_converts_with_orthonormal_rotations(name):
     rec = read_c3d(SHARED / name)
     assert len(rec.links) == 19

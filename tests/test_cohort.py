@@ -12,14 +12,14 @@ import pyarrow.parquet as pq
 import pytest
 
 from torchik.cli import main
+from torchik.io import load_recording
+from torchik.method.models import TRACKED_LINKS, HumanSubject, load_model
+from torchik.method.settings import TrackerSettings
 from torchik.pipelines.cohort import read_manifest, run_cohort, write_synthetic_cohort
 from torchik.pipelines.cohort.plan import plan_batches
 from torchik.pipelines.cohort.run import EXIT_ONCE_ENV
 from torchik.pipelines.cohort.synthetic import synthetic_trials
 from torchik.pipelines.cohort.trial import load_result
-from torchik.io import load_recording
-from torchik.method.models import TRACKED_LINKS, HumanSubject, load_model
-from torchik.method.settings import TrackerSettings
 from torchik.pipelines.track import track_recording
 
 pytestmark = pytest.mark.usefixtures("one_thread")

@@ -28,6 +28,7 @@ import numpy as np
 import pytest
 import torch
 
+from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.diagnosis.calibration import apply_calibration
 from torchik.pipelines.diagnosis.effect import GUARD, halves
 from torchik.pipelines.diagnosis.gyro import GyroBias, GyroScale, StreamDelay
@@ -36,7 +37,6 @@ from torchik.pipelines.diagnosis.loop import diagnose, errors
 from torchik.pipelines.diagnosis.placement import HeadingDrift, Misalignment, SensorDelay
 from torchik.pipelines.diagnosis.position import PositionOffset
 from torchik.pipelines.diagnosis.synthetic import beyond_limit, recording_of, with_missing_dof
-from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.synthetic.scenarios import scenario
 
 SEEDS = range(10)
@@ -124,7 +124,8 @@ def diagnose_cases(only=None) -> dict[str, list]:
         recordings.append(second.inject(first.inject(clean[s])))
         cases.append(("pair", (first, second), [first.target, second.target]))
     rng = np.random.default_rng(99)
-    for s in SEEDS if want("missing_dof") else ():  # an ab/adduction axis (x of the parent) at a knee or an elbow, which Human48 lacks
+    # an ab/adduction axis (x of the parent) at a knee or an elbow, which Human48 lacks
+    for s in SEEDS if want("missing_dof") else ():
         side, (joint, parent, child, hand) = rng.choice(("Left", "Right")), MISSING[rng.integers(len(MISSING))]
         effect = MissingDof("missing_dof", f"j{side}{joint}", dict(axis=[1.0, 0.0, 0.0], parent=side + parent,
                                                                   child=side + child, first_joint=f"j{side}{joint}_roty"))
@@ -237,7 +238,8 @@ def test_two_effects_at_once_are_both_found(runs):
 def test_noise_alone_adds_nothing(runs):
     """Noise alone: nothing added (>= 9 of 10)."""
     empty = sum(not result.effects for _, _, result in runs["clean"])
-    assert empty >= 9, f"nothing added in {empty} of 10; added: {[r.effects[0].summary() for _, _, r in runs['clean'] if r.effects]}"
+    added = [r.effects[0].summary() for _, _, r in runs["clean"] if r.effects]
+    assert empty >= 9, f"nothing added in {empty} of 10; added: {added}"
 
 
 def test_the_calibration_file_undoes_the_measurement_effects(runs):

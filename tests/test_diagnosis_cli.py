@@ -16,14 +16,13 @@ import pytest
 import rerun
 
 from torchik.cli import main
-from torchik.io import read
+from torchik.io import angular_velocity_from_orientations, read, save_recording
+from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.diagnosis.effect import replace
 from torchik.pipelines.diagnosis.joints import MissingDof
 from torchik.pipelines.diagnosis.loop import diagnose
 from torchik.pipelines.diagnosis.placement import Misalignment
 from torchik.pipelines.diagnosis.synthetic import recording_of, with_missing_dof
-from torchik.io import angular_velocity_from_orientations, save_recording
-from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.synthetic.scenarios import scenario
 
 pytestmark = pytest.mark.usefixtures("one_thread")

@@ -10,10 +10,18 @@ import pytest
 import torch
 
 from torchik.cli import main
-from torchik.pipelines.experiment import (METHODS, Settings, convergence, ratios, run_method, run_paper, scenario_cases,
-                                statistics)
 from torchik.io import save_recording
 from torchik.method.models import TRACKED_LINKS, load_model
+from torchik.pipelines.experiment import (
+    METHODS,
+    Settings,
+    convergence,
+    ratios,
+    run_method,
+    run_paper,
+    scenario_cases,
+    statistics,
+)
 from torchik.synthetic.scenarios import scenario
 
 SHORT = Settings(duration=0.6, transient=0.2, repeats=1, convergence_seconds=0.2)
@@ -41,7 +49,7 @@ def test_a_short_run_writes_the_table_and_every_figure(tmp_path):
 def test_each_method_is_timed_every_step_and_whole_body_fits_best():
     case = scenario_cases(SHORT, models=("human48",), scenarios=("walking",))[0]
     runs = {method: run_method(case, method, SHORT) for method in METHODS}
-    for method, run in runs.items():
+    for run in runs.values():
         assert run.step_time.shape == run.mnte.shape == run.time.shape == (len(case.recording.time),)
         assert bool((run.step_time > 0).all()) and bool(torch.isfinite(run.mnte).all())
         row = statistics(run, SHORT.transient)

@@ -5,11 +5,10 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 import torch
-
-from torchik.method.models import SEGMENTS, HumanSubject, human_urdf, load_model
-from torchik.errors import ModelError
-
 from conftest import REPO, reference_urdf
+
+from torchik.errors import ModelError
+from torchik.method.models import SEGMENTS, HumanSubject, human_urdf, load_model
 
 
 def joints_of(text: str) -> dict:

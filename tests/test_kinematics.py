@@ -3,11 +3,10 @@
 import numpy as np
 import pytest
 import torch
+from conftest import random_configurations
 
 from torchik import InputError, KinematicModel, ModelError, UnknownLinkError, so3
 from torchik.method.models import TRACKED_LINKS, icub_urdf_path, load_model
-
-from conftest import random_configurations
 
 MODELS = ["human66", "human48", "icub"]
 
@@ -105,19 +104,23 @@ def test_jacobian_matches_finite_differences(name):
     n, eps = model.n_dof, 1e-6
     cols = []
     for k in range(6 + n):
-        def moved(sign):
+        def moved(sign, k=k):
             dp, dR, ds = torch.zeros_like(p), torch.eye(3, dtype=p.dtype).expand_as(R), torch.zeros_like(s)
             if k < 3:
-                dp = dp.clone(); dp[:, k] = sign * eps
+                dp = dp.clone()
+                dp[:, k] = sign * eps
             elif k < 6:
-                w = torch.zeros(3, dtype=p.dtype); w[k - 3] = sign * eps
+                w = torch.zeros(3, dtype=p.dtype)
+                w[k - 3] = sign * eps
                 dR = so3.exp(w).expand_as(R)  # world-frame angular velocity: R <- exp(w) R
             else:
-                ds = ds.clone(); ds[:, k - 6] = sign * eps
+                ds = ds.clone()
+                ds[:, k - 6] = sign * eps
             return model(p + dp, dR @ R, s + ds, links, jacobian=False)
         plus, minus = moved(1.0), moved(-1.0)
         v = (plus.position - minus.position) / (2 * eps)
-        w = so3.vee(plus.rotation @ minus.rotation.transpose(-1, -2) - minus.rotation @ plus.rotation.transpose(-1, -2)) / (4 * eps)
+        turn = plus.rotation @ minus.rotation.transpose(-1, -2)
+        w = so3.vee(turn - turn.transpose(-1, -2)) / (4 * eps)
         cols.append(torch.cat([v, w], dim=-1))
     J_fd = torch.stack(cols, dim=-1)
     assert (J - J_fd).abs().max() < 1e-7

@@ -1,6 +1,7 @@
 """Every import in torchik points one way: down the layers, and never round in a circle.
 
-Layers, bottom up: errors; the method (`torchik/method/`); data (`torchik/io/`, `torchik/synthetic/`);
+Layers, bottom up: errors and `torchik/data/` (the package's version and files); the method
+(`torchik/method/`); data (`torchik/io/`, `torchik/synthetic/`, the live sources `torchik/live/`);
 pipelines (`torchik/pipelines/`); the command line (`torchik/cli/`); the package's root API
 (`torchik/__init__.py`, `__main__.py`). Read from the source with `ast`, imports inside functions
 included: a lazy import is still a dependency.
@@ -12,7 +13,7 @@ import ast
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "torchik"
-LAYERS = {"errors": 0, "method": 1, "io": 2, "synthetic": 2, "pipelines": 3, "cli": 4}
+LAYERS = {"errors": 0, "data": 0, "method": 1, "io": 2, "synthetic": 2, "live": 2, "pipelines": 3, "cli": 4}
 ROOT_LAYER = 5
 
 

@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 import torch
 
-from torchik.method import so3
 from torchik.io import RecordingError, apply_map, calibrate, load_map
 from torchik.io.maps import LinkEntry, LinkMap, reference_configuration
 from torchik.io.recording import Recording
-from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.io.targets import recording_targets
-from torchik.synthetic.scenarios import scenario
-from torchik.method.tracker import DynamicalIK
+from torchik.method import so3
+from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.method.state import State
+from torchik.method.tracker import DynamicalIK
+from torchik.synthetic.scenarios import scenario
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -89,7 +89,8 @@ def test_maps_refuse_what_they_cannot_do():
     head_based = Recording(time=full.time, links=full.links, orientation=full.orientation,
                            angular_velocity=full.angular_velocity, base_link="Head", base_position=full.base_position,
                            base_linear_velocity=full.base_linear_velocity)
-    with pytest.raises(RecordingError, match="takes the base position from segment 'Pelvis'; the recording's base is 'Head'"):
+    with pytest.raises(RecordingError,
+                       match="takes the base position from segment 'Pelvis'; the recording's base is 'Head'"):
         apply_map(head_based, load_map("xsens_to_human"))
 
 
@@ -140,3 +141,31 @@ def test_the_bandai_skeleton_calibrated_on_a_standing_frame_is_tracked_at_its_30
         recording_targets(walk, walk.links))
     assert bool(torch.isfinite(trajectory.joint_positions).all()) and bool(trajectory.diagnostics["solved"].all())
     assert float(trajectory.diagnostics["mnte"][30:].median()) < 1e-3
+
+
+def test_auto_names_the_closest_map_and_what_it_misses():
+    from torchik.io.maps import choose_map
+
+    names = ("Hips", "Spine", "Head", "LeftArm")
+    with pytest.raises(RecordingError, match=r"the closest, 'humanik_to_human', misses \[.*'RightShoulder'"):
+        choose_map(names)
+
+
+@pytest.mark.parametrize("file,explicit", [("bvh/cmu_131_01.bvh", "cmu_to_human"),
+                                           ("bvh/bandai_walk_normal_001.bvh", "bandai_to_human"),
+                                           ("mvnx/test_mocap.mvnx", "xsens_to_human")])
+def test_auto_picks_each_shared_files_map_with_the_same_result(file, explicit):
+    """The shared CMU, Bandai and MVNX files: --map auto is their explicit map, and the mapped
+    recordings are the same arrays (so the tracking is the same)."""
+    from torchik.io import map_recording, read
+
+    if not (SHARED / file).is_file():
+        pytest.skip("../shared/data absent")
+    model = load_model("human48")
+    recording = read(SHARED / file)
+    auto, auto_map = map_recording(recording, "auto", model)
+    given, _ = map_recording(recording, explicit, model)
+    assert auto_map.source == load_map(explicit).source
+    assert auto.links == given.links
+    np.testing.assert_array_equal(auto.orientation, given.orientation)
+    np.testing.assert_array_equal(auto.base_position, given.base_position)

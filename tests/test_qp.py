@@ -33,7 +33,8 @@ def test_an_infeasible_problem_is_flagged_and_gets_the_clipped_fallback():
     problem = random_problem(3, 6, 1)
     G = torch.zeros(3, 2, 6, dtype=torch.float64)
     G[:, 0, 3], G[:, 1, 3] = 1.0, -1.0  # x3 <= -1 and x3 >= 1
-    infeasible = QPProblem(problem.H, problem.g, problem.lb, problem.ub, G, torch.tensor([[-1.0, -1.0]] * 3, dtype=torch.float64))
+    h = torch.tensor([[-1.0, -1.0]] * 3, dtype=torch.float64)
+    infeasible = QPProblem(problem.H, problem.g, problem.lb, problem.ub, G, h)
     solution = PiqpBackend().solve(infeasible)
     assert not bool(solution.solved.any())
     assert bool(torch.isfinite(solution.x).all())

@@ -5,15 +5,15 @@ import numpy as np
 import pytest
 import qpsolvers
 import torch
-
 from step_problems import step_problems
+
 from torchik import KinematicModel
 from torchik.method.limits import LimitSettings
 from torchik.method.models import TRACKED_LINKS, HumanSubject, load_model
 from torchik.method.qp import BatchedBackend, DenseHessian, PiqpBackend, QPProblem
-from torchik.synthetic.motion import periodic_motion, targets_from_motion
-from torchik.method.tracker import DynamicalIK
 from torchik.method.state import TargetSequence
+from torchik.method.tracker import DynamicalIK
+from torchik.synthetic.motion import periodic_motion, targets_from_motion
 
 # 1000 problems in all
 SIZES = {"human66": 400, "human48": 300, "icub": 300}
@@ -45,18 +45,22 @@ def kkt_error(problem: QPProblem, x, bound, row) -> torch.Tensor:
     """The largest violation of the KKT conditions, each relative to its scale. -> [B]"""
     g, lb, ub, G, h = problem.g, problem.lb, problem.ub, problem.G, problem.h
     scale = 1 + g.abs().amax(-1)
-    bound_scale = 1 + torch.where(torch.isfinite(lb), lb.abs(), 0).amax(-1) + torch.where(torch.isfinite(ub), ub.abs(), 0).amax(-1)
+    largest = lambda bound: torch.where(torch.isfinite(bound), bound.abs(), 0).amax(-1)  # noqa: E731
+    bound_scale = 1 + largest(lb) + largest(ub)
     gradient = (problem.dense_hessian @ x[..., None]).squeeze(-1) + g + bound
     upper, lower = bound.clamp(min=0), (-bound).clamp(min=0)
     errors = [
         gradient.abs().amax(-1) / scale if G is None else
         (gradient + (G.transpose(1, 2) @ row[..., None]).squeeze(-1)).abs().amax(-1) / scale,  # stationarity
         ((x - ub).clamp(min=0).amax(-1) + (lb - x).clamp(min=0).amax(-1)) / bound_scale,  # primal feasibility
-        torch.where(torch.isfinite(ub), upper * (ub - x), upper * torch.inf).nan_to_num(0.0).amax(-1) / (scale * bound_scale),
-        torch.where(torch.isfinite(lb), lower * (x - lb), lower * torch.inf).nan_to_num(0.0).amax(-1) / (scale * bound_scale),
+        torch.where(torch.isfinite(ub), upper * (ub - x),
+                    upper * torch.inf).nan_to_num(0.0).amax(-1) / (scale * bound_scale),
+        torch.where(torch.isfinite(lb), lower * (x - lb),
+                    lower * torch.inf).nan_to_num(0.0).amax(-1) / (scale * bound_scale),
     ]
     # complementarity with multipliers on a missing bound: inf * 0 is nan, so such a multiplier must be 0
-    errors.append(torch.where((upper > 0) & ~torch.isfinite(ub), 1.0, 0.0).amax(-1) + torch.where((lower > 0) & ~torch.isfinite(lb), 1.0, 0.0).amax(-1))
+    on_missing = lambda multiplier, bound: torch.where((multiplier > 0) & ~torch.isfinite(bound), 1.0, 0.0).amax(-1)
+    errors.append(on_missing(upper, ub) + on_missing(lower, lb))
     if G is not None:
         Gx = (G @ x[..., None]).squeeze(-1)
         row_scale = 1 + h.abs().amax(-1) + G.abs().sum(-1).amax(-1) * x.abs().amax(-1)
@@ -139,7 +143,8 @@ def test_the_step_matches_piqp_where_the_reduced_hessian_is_well_conditioned(sol
     reduced = H * (free[:, :, None] & free[:, None, :]) + torch.diag_embed((~free).double())
     well = (both & (torch.linalg.cond(reduced) < 1e4)).nonzero().flatten()
     pick = lambda t: None if t is None else t[well]  # noqa: E731
-    subset = QPProblem(pick(problem.dense_hessian), *(pick(t) for t in (problem.g, problem.lb, problem.ub, problem.G, problem.h)))
+    subset = QPProblem(pick(problem.dense_hessian),
+                       *(pick(t) for t in (problem.g, problem.lb, problem.ub, problem.G, problem.h)))
     x_tight, _, _, tight_status = piqp_reference(subset, dict(eps_abs=1e-12, eps_rel=1e-13, eps_duality_gap_abs=1e-12,
                                                                 eps_duality_gap_rel=1e-13, max_iter=1000))
     solved_tight = torch.tensor([s == "SOLVED" for s in tight_status])
@@ -228,7 +233,8 @@ def test_16_tracked_subjects_batched_follow_the_piqp_trajectories_within_1e_6_ra
     sequences = [targets_from_motion(m, periodic_motion(m, 0.6, 100, seed=i, frequency=3.0), links)
                  for i, m in enumerate(models)]
     cat = lambda name: torch.cat([getattr(s, name) for s in sequences], dim=1)  # noqa: E731
-    batch = TargetSequence(sequences[0].time, cat("position"), cat("linear_velocity"), cat("rotation"), cat("angular_velocity"))
+    batch = TargetSequence(sequences[0].time, cat("position"), cat("linear_velocity"), cat("rotation"),
+                           cat("angular_velocity"))
     slow = LimitSettings(max_rate=8.0)  # joint-rate bounds that the motion's rates reach
     batched = DynamicalIK(stacked, links, dt=0.01, backend="batched", limits=slow).run(batch)
     tight = PiqpBackend(eps_abs=1e-11, eps_rel=1e-12)  # at its 1e-9 default PIQP alone moves nu by 1e-4 here

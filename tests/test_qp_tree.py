@@ -3,8 +3,8 @@ elimination solves with held variables and extra diagonals exactly as a dense Ch
 
 import pytest
 import torch
-
 from step_problems import step_problems
+
 from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.method.qp import DenseHessian, JointTree, TreeHessian
 from torchik.method.task import TaskStructure, normal_equations
@@ -15,7 +15,8 @@ def test_the_tree_hessian_is_the_normal_matrix_of_the_step(name):
     model, links = load_model(name), TRACKED_LINKS[name]
     g = torch.Generator().manual_seed(0)
     B = 6
-    p, R = torch.randn(B, 3, generator=g, dtype=torch.float64), torch.linalg.qr(torch.randn(B, 3, 3, generator=g, dtype=torch.float64))[0]
+    p = torch.randn(B, 3, generator=g, dtype=torch.float64)
+    R = torch.linalg.qr(torch.randn(B, 3, 3, generator=g, dtype=torch.float64))[0]
     R = R * torch.sign(torch.linalg.det(R))[:, None, None]
     s = torch.randn(B, model.n_dof, generator=g, dtype=torch.float64)
     base = (model.base_link,)

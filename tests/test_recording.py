@@ -7,8 +7,8 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from torchik.method import so3
 from torchik.io import Recording, RecordingError, angular_velocity_from_orientations, load_recording, save_recording
+from torchik.method import so3
 
 
 @st.composite
@@ -26,8 +26,8 @@ def recordings(draw):
     if draw(st.booleans()):  # a gap
         R[g.integers(T), g.integers(n)] = np.nan
     joints = draw(st.one_of(st.none(), st.integers(1, 4)))
-    meta = draw(st.dictionaries(st.text(max_size=6), st.one_of(st.floats(allow_nan=False), st.integers(), st.text(max_size=6),
-                                                                 st.lists(st.integers(), max_size=3)), max_size=4))
+    values = st.one_of(st.floats(allow_nan=False), st.integers(), st.text(max_size=6), st.lists(st.integers(), max_size=3))
+    meta = draw(st.dictionaries(st.text(max_size=6), values, max_size=4))
     return Recording(time=time, links=tuple(links), orientation=R, angular_velocity=w, base_link=links[0],
                      base_position=g.normal(size=(T, 3)), base_linear_velocity=g.normal(size=(T, 3)),
                      joint_names=None if joints is None else tuple(f"j{i}" for i in range(joints)),

@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 import torch
 
-from torchik.method import so3
-from torchik.method.baselines import WholeBodyIK
 from torchik.cli import main
 from torchik.io import Recording, save_recording
-from torchik.method.models import TRACKED_LINKS, load_model
-from torchik.pipelines.retarget import human_to_icub, resample, retarget
 from torchik.io.targets import recording_targets
-from torchik.synthetic.scenarios import scenario
+from torchik.method import so3
+from torchik.method.baselines import WholeBodyIK
+from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.method.state import State
+from torchik.pipelines.retarget import human_to_icub, resample, retarget
+from torchik.synthetic.scenarios import scenario
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 # iCub is not a person: its links can follow the mapped human ones only so far. On the walk below the

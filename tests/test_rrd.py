@@ -7,14 +7,14 @@ import rerun.chunk
 import torch
 
 from torchik import InputError, so3
-from torchik.method.models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_model
-from torchik.pipelines.rrd import quaternion_xyzw, log_trajectory, visuals
 from torchik.io.targets import recording_targets
-from torchik.synthetic.scenarios import scenario
-from torchik.synthetic.motion import periodic_motion, targets_from_motion
-from torchik.pipelines.evaluation import tracking_errors
-from torchik.pipelines.track import track_recording
+from torchik.method.models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_model
 from torchik.method.tracker import DynamicalIK
+from torchik.pipelines.evaluation import tracking_errors
+from torchik.pipelines.rrd import log_trajectory, quaternion_xyzw, visuals
+from torchik.pipelines.track import track_recording
+from torchik.synthetic.motion import periodic_motion, targets_from_motion
+from torchik.synthetic.scenarios import scenario
 
 
 def read_rrd(path, contents, index="time"):
@@ -125,7 +125,8 @@ def test_a_batch_has_one_tree_per_subject_and_their_mean_and_max(tmp_path):
     path = log_trajectory(tmp_path / "batch.rrd", model, links, trajectory, sequence)
     paths = entity_paths(path)
     assert {f"/subject/{i}/errors/mnte" for i in range(3)} <= paths and "/subject/3/errors/mnte" not in paths
-    frame = read_rrd(path, [f"/subject/{i}/errors/rmse" for i in range(3)] + ["/aggregate/errors/rmse", "/subject/1/joints/jRightKnee_roty"])
+    frame = read_rrd(path, [f"/subject/{i}/errors/rmse" for i in range(3)]
+                     + ["/aggregate/errors/rmse", "/subject/1/joints/jRightKnee_roty"])
     assert len(frame) == len(trajectory.time) == 31
     each = np.stack([column(frame, f"/subject/{i}/errors/rmse")[:, 0] for i in range(3)], axis=1)
     assert np.array_equal(each, trajectory.diagnostics["rmse"].numpy())

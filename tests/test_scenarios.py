@@ -6,10 +6,10 @@ import torch
 
 from torchik import InputError
 from torchik.io import angular_velocity_from_orientations
-from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.io.targets import recording_targets
-from torchik.synthetic.scenarios import SCENARIOS, scenario
+from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.method.tracker import DynamicalIK
+from torchik.synthetic.scenarios import SCENARIOS, scenario
 
 MODELS = {name: load_model(name) for name in ("human66", "human48", "icub")}
 
@@ -32,7 +32,8 @@ def test_orientations_and_angular_velocities_are_consistent(name):
 def test_the_tracker_follows_each_scenario_on_its_model(model_name, name, bound):
     model, links = MODELS[model_name], TRACKED_LINKS[model_name]
     rec = scenario(name, model, links, duration=4.0, rate=100.0)
-    trajectory = DynamicalIK(model, links, position_gain=20.0, orientation_gain=20.0, dt=0.01).run(recording_targets(rec, links))
+    tracker = DynamicalIK(model, links, position_gain=20.0, orientation_gain=20.0, dt=0.01)
+    trajectory = tracker.run(recording_targets(rec, links))
     assert float(trajectory.diagnostics["mnte"][200:].max()) < bound  # after the transient from the zero configuration
 
 
@@ -50,7 +51,8 @@ def test_speeds_determinism_and_seeded_noise():
     model, links = MODELS["human66"], TRACKED_LINKS["human66"]
     walk = scenario("walking", model, links, duration=2.0)
     run = scenario("running", model, links, duration=2.0)
-    assert np.isclose(walk.base_linear_velocity[:, 0].mean(), 4 / 3.6) and np.isclose(run.base_linear_velocity[:, 0].mean(), 10 / 3.6)
+    assert np.isclose(walk.base_linear_velocity[:, 0].mean(), 4 / 3.6)
+    assert np.isclose(run.base_linear_velocity[:, 0].mean(), 10 / 3.6)
     again = scenario("walking", model, links, duration=2.0)
     assert np.array_equal(walk.orientation, again.orientation)
     noisy = scenario("walking", model, links, duration=2.0, orientation_noise=0.01, gyro_noise=0.05, seed=3)

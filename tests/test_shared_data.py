@@ -5,8 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from torchik.io import read
-from torchik.io import load_recording, save_recording
+from torchik.io import load_recording, read, save_recording
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 FILES = sorted(p for p in DATA.glob("*/*") if p.suffix.lower() in (".mvnx", ".bvh", ".c3d")) if DATA.is_dir() else []

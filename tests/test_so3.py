@@ -18,7 +18,8 @@ def test_exp_log_round_trip_including_small_and_near_pi_angles():
     g = torch.Generator().manual_seed(1)
     axis = torch.randn(400, 3, generator=g, dtype=torch.float64)
     axis = axis / axis.norm(dim=-1, keepdim=True)
-    angle = torch.cat([torch.logspace(-9, -1, 100, dtype=torch.float64), torch.rand(200, generator=g, dtype=torch.float64) * 3.1,
+    angle = torch.cat([torch.logspace(-9, -1, 100, dtype=torch.float64),
+                       torch.rand(200, generator=g, dtype=torch.float64) * 3.1,
                        math.pi - torch.logspace(-8, -3, 100, dtype=torch.float64)])
     w = axis * angle[:, None]
     R = so3.exp(w)

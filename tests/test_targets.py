@@ -9,7 +9,8 @@ from torchik.method.targets import Targets, check_targets, clean_targets
 
 def make(B=2, n_p=1, n_o=3, seed=0) -> Targets:
     g = torch.Generator().manual_seed(seed)
-    return Targets(torch.randn(B, n_p, 3, generator=g, dtype=torch.float64), torch.randn(B, n_p, 3, generator=g, dtype=torch.float64),
+    return Targets(torch.randn(B, n_p, 3, generator=g, dtype=torch.float64),
+                   torch.randn(B, n_p, 3, generator=g, dtype=torch.float64),
                    so3.random_rotation((B, n_o), g), torch.randn(B, n_o, 3, generator=g, dtype=torch.float64))
 
 

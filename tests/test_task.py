@@ -2,11 +2,10 @@
 
 import pytest
 import torch
+from conftest import random_configurations
 
 from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.method.task import TaskStructure, normal_equations
-
-from conftest import random_configurations
 
 
 @pytest.mark.parametrize("name,position_links", [("human66", ("Pelvis",)), ("human48", ("Pelvis", "RightHand", "LeftToe")),
@@ -28,7 +27,8 @@ def test_structured_normal_equations_equal_the_dense_ones(name, position_links, 
                 joint_axes=True)  # Jacobians of the position links off the base only
     H, g = normal_equations(structure, kin.joint_axes, kin.jacobian, v_p, v_o, 1e-3, w_p, w_o)
 
-    J = torch.cat((model(p, R, s, position_links).jacobian[:, :, :3], model(p, R, s, orientation_links).jacobian[:, :, 3:]), 1)
+    J = torch.cat((model(p, R, s, position_links).jacobian[:, :, :3],
+                   model(p, R, s, orientation_links).jacobian[:, :, 3:]), 1)
     w = torch.cat((torch.ones(6, len(position_links), dtype=torch.float64) if w_p is None else w_p,
                    torch.ones(6, len(orientation_links), dtype=torch.float64) if w_o is None else w_o), 1)
     J = (J * w[..., None, None]).flatten(1, 2)

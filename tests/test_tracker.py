@@ -7,12 +7,12 @@ import pytest
 import torch
 
 from torchik import InputError, KinematicModel, so3
-from torchik.method.models import TRACKED_LINKS, HumanSubject, load_model
 from torchik.method.metrics import orientation_error
-from torchik.synthetic.motion import periodic_motion, targets_from_motion
+from torchik.method.models import TRACKED_LINKS, HumanSubject, load_model
+from torchik.method.state import State
 from torchik.method.targets import Targets
 from torchik.method.tracker import DynamicalIK
-from torchik.method.state import State
+from torchik.synthetic.motion import periodic_motion, targets_from_motion
 
 F64 = dict(dtype=torch.float64)
 
@@ -184,7 +184,8 @@ def test_a_batch_of_8_subjects_equals_8_single_runs():
     cat = lambda name: torch.cat([getattr(s, name) for s in sequences], dim=1)  # noqa: E731
     from torchik.method.state import TargetSequence
 
-    batch = TargetSequence(sequences[0].time, cat("position"), cat("linear_velocity"), cat("rotation"), cat("angular_velocity"))
+    batch = TargetSequence(sequences[0].time, cat("position"), cat("linear_velocity"), cat("rotation"),
+                           cat("angular_velocity"))
     # one backend for both: the batched one, structured for the batch and dense for one subject
     together = DynamicalIK(stacked, links, dt=0.01, backend="batched").run(batch)
     for i, (model, sequence) in enumerate(zip(models, sequences)):
@@ -233,7 +234,8 @@ def test_jittered_timestamps_are_honoured():
     idx = (t * 10000).round().long()
     from torchik.synthetic.motion import Motion
 
-    motion = Motion(fine.time[idx], fine.base_position[idx], fine.base_rotation[idx], fine.joint_positions[idx], fine.velocity[idx])
+    motion = Motion(fine.time[idx], fine.base_position[idx], fine.base_rotation[idx], fine.joint_positions[idx],
+                    fine.velocity[idx])
     sequence = targets_from_motion(model, motion, links)
     tracker = DynamicalIK(model, links, position_gain=20.0, orientation_gain=20.0, dt=0.01)
     honoured = tracker.run(sequence, initial=motion.state(0))
@@ -245,7 +247,8 @@ def test_jittered_timestamps_are_honoured():
 
     uniform = TargetSequence(torch.arange(len(t), **F64) * 0.01, sequence.position, sequence.linear_velocity,
                              sequence.rotation, sequence.angular_velocity)
-    ignored = DynamicalIK(model, links, position_gain=20.0, orientation_gain=20.0, dt=0.01).run(uniform, initial=motion.state(0))
+    tracker = DynamicalIK(model, links, position_gain=20.0, orientation_gain=20.0, dt=0.01)
+    ignored = tracker.run(uniform, initial=motion.state(0))
     assert float((ignored.joint_positions - motion.joint_positions)[after].abs().max()) > 10 * error
 
 

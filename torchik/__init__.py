@@ -11,9 +11,19 @@ algorithm), `io/` and `synthetic/` (data), `pipelines/` (track, retarget, diagno
 experiment, bench, rrd), `cli/` (the `torchik` command).
 """
 
+from .data import version
 from .errors import InputError, ModelError, TorchikError, UnknownLinkError
-from .io import (Recording, RecordingError, load_map, load_recording, map_recording, read, recording_targets,
-                 save_recording, save_trajectory)
+from .io import (
+    Recording,
+    RecordingError,
+    load_map,
+    load_recording,
+    map_recording,
+    read,
+    recording_targets,
+    save_recording,
+    save_trajectory,
+)
 from .method import so3
 from .method.kinematics import KinematicModel, LinearLimits, LinkKinematics
 from .method.limits import LimitSettings
@@ -30,7 +40,7 @@ from .pipelines.track import track_recording as track
 from .synthetic.motion import periodic_motion, targets_from_motion
 from .synthetic.scenarios import SCENARIOS, scenario
 
-__version__ = "0.1.0"
+__version__ = version()  # pyproject.toml's, as installed
 __all__ = [
     "__version__",
     # models and kinematics

@@ -12,11 +12,12 @@ import argparse
 import signal
 import sys
 
+from ..data import version
 from ..errors import TorchikError
-from . import bench, cohort, diagnose, experiment, models, recordings, retarget, track
+from . import bench, cohort, diagnose, experiment, live, models, recordings, replay, retarget, track
 from .common import Parser, Terminated, terminate_as_interrupt
 
-COMMANDS = (track, models, recordings, bench, experiment, retarget, cohort, diagnose)  # in --help's order
+COMMANDS = (track, models, recordings, bench, experiment, retarget, cohort, diagnose, live, replay)  # in --help's order
 
 
 def build_parser() -> Parser:
@@ -26,6 +27,7 @@ def build_parser() -> Parser:
         epilog=track.EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.add_argument("--version", action="version", version=f"torchik {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for command in COMMANDS:

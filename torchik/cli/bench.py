@@ -21,7 +21,8 @@ def add_parser(subparsers) -> None:
         epilog="examples:\n  torchik bench\n  torchik bench --models human66 --batch 1024 --no-loops\n"
                "  torchik bench --device cuda --batch 1024 65536 --json gpu.json")
     parser.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS)
-    parser.add_argument("--batch", nargs="+", type=int, default=list(bench.BATCHES), help="batch sizes (default 1 64 1024 8192)")
+    parser.add_argument("--batch", nargs="+", type=int, default=list(bench.BATCHES),
+                        help="batch sizes (default 1 64 1024 8192)")
     parser.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
     parser.add_argument("--dtype", default="float64", choices=("float64", "float32"))
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
@@ -46,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
     dtype = getattr(torch, args.dtype)
     results = bench.run(args.models, args.batch, args.device, dtype, not args.no_loops, args.loop_steps, args.seconds,
                   args.max_steps, progress=not args.quiet)
-    device_name = torch.cuda.get_device_name(0) if torch.device(args.device).type == "cuda" else platform.processor() or platform.machine()
+    on_cuda = torch.device(args.device).type == "cuda"
+    device_name = torch.cuda.get_device_name(0) if on_cuda else platform.processor() or platform.machine()
     print(f"torchik bench: {args.dtype}, device {args.device} ({device_name}), {torch.get_num_threads()} CPU threads")
     print(bench.table(results))
     if args.json:

@@ -41,7 +41,9 @@ def add_map_arguments(parser: argparse.ArgumentParser, target: str = "the model'
     from ..io.maps import built_in_maps
 
     parser.add_argument("--map", help=f"link map from the recording's segments to {target}: a built-in name "
-                                      f"({', '.join(built_in_maps())}) or a .toml file")
+                                      f"({', '.join(built_in_maps())}), a .toml file, or auto (the built-in map "
+                                      f"whose segments the recording has; the default when its segments are not "
+                                      f"the model's links)")
     parser.add_argument("--calibration", metavar="FILE", help="a static trial to calibrate the map's offsets on")
     parser.add_argument("--calibration-frame", type=frame_argument, default=None,
                         help="the frame holding the reference pose: an index, or 'rest' for a BVH rest pose "
@@ -132,8 +134,32 @@ def torch_device(text: str):
     return device
 
 
-def model_urdf(name: str):
-    """A built-in model's URDF (text or path): what draws its body in a rerun recording."""
+def model_urdf(name: str, subject=None):
+    """A built-in model's URDF (text or path), for `subject` (a HumanSubject; default subject 1): what
+    draws its body in a rerun recording."""
     from ..method.models import human_urdf, icub_urdf_path
 
-    return icub_urdf_path() if name == "icub" else human_urdf(int(name[-2:]))
+    return icub_urdf_path() if name == "icub" else human_urdf(int(name[-2:]), subject)
+
+
+def add_subject_argument(parser: argparse.ArgumentParser) -> None:
+    """--subject-from: track with the subject's own human model, built from a recording."""
+    parser.add_argument("--subject-from", metavar="RECORDING",
+                        help="build the human model from this recording's skeleton (MVNX joint points, BVH bone "
+                             "offsets through the map, a C3D static trial's Plug-in Gait lengths; a converted .npz "
+                             "keeps them) instead of the default subject")
+
+
+def subject_from(path: str | None, map_name: str | None = None, say=print):
+    """The HumanSubject a recording measures (None without a path), with one line saying where its
+    numbers came from."""
+    if path is None:
+        return None
+    from ..io import read
+    from ..io.subjects import subject_from_recording
+
+    built = subject_from_recording(read(path), map_name=None if map_name in (None, "auto") else map_name)
+    say(f"subject from {path}: height {built.subject.height:.3f} m ({built.height_from}), mass "
+        f"{built.subject.mass:.1f} kg ({built.mass_from}); {len(built.from_file)} segment lengths and "
+        f"{len(built.subject.joint_origins)} joint placements from the file, {len(built.scaled)} segments scaled")
+    return built.subject

@@ -14,9 +14,9 @@ import argparse
 import time
 from pathlib import Path
 
-from .common import add_map_arguments
 from ..errors import InputError
 from ..method.settings import TrackerSettings
+from .common import add_map_arguments, add_subject_argument, subject_from
 
 EXAMPLES = """examples:
   torchik diagnose walk.npz --model human48 --report diag/
@@ -50,6 +50,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                                                        "an earlier diagnosis wrote)")
     parser.add_argument("--report", required=True, metavar="DIR", help="the folder to write the report into")
     add_map_arguments(parser, "the model's links")
+    add_subject_argument(parser)
     parser.add_argument("--gain", type=float, default=TrackerSettings.position_gain,
                         help=f"K of the tracker, 1/s (default {TrackerSettings.position_gain:g})")
     parser.add_argument("--max-effects", type=int, default=8, help="stop after adding this many effects (default 8)")
@@ -93,14 +94,20 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--calibration calibrates a --map; give the map too")
     if args.urdf and not Path(args.urdf).is_file():
         raise InputError(f"{args.urdf}: no such URDF file")
-    urdf = Path(args.urdf).read_text() if args.urdf else human_urdf(int(args.model[-2:]))
+    if args.urdf and args.subject_from:
+        raise InputError("--urdf and --subject-from both give the model; give one")
+    subject = subject_from(args.subject_from, args.map, say=(lambda _: None) if args.quiet else print)
+    urdf = Path(args.urdf).read_text() if args.urdf else human_urdf(int(args.model[-2:]), subject)
     model = KinematicModel.from_urdf(urdf, name=f"Human{args.model[-2:]}" + ("+" if args.urdf else ""))
     recording = read(args.recording)
-    if args.map:
+    from ..io.maps import default_map
+
+    map_name = args.map or default_map(recording.links, model)
+    if map_name:
         from ..io import map_recording
 
         static = read(args.calibration) if args.calibration else None
-        recording, _ = map_recording(recording, args.map, model, static, args.calibration_frame)
+        recording, _ = map_recording(recording, map_name, model, static, args.calibration_frame)
     links = [name for name in TRACKED_LINKS[args.model] if name in recording.links]
     if model.base_link not in links:
         raise InputError(f"{args.recording}: no {model.base_link} among its segments {list(recording.links)}; "
@@ -114,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
                               kinds=args.kinds, log=lambda line: say("    " + line))
     finally:
         torch.set_num_threads(threads)
-    paths = write(diagnosis, out, args.recording, model.name, rrd=not args.no_rrd)
+    paths = write(diagnosis, out, args.recording, model.name or Path(model.source).stem, rrd=not args.no_rrd)
     if not args.quiet:
         before, after = diagnosis.before.overall, diagnosis.after.overall
         print(f"diagnosed {args.recording} with {model.name} ({len(links)} links) in {time.perf_counter() - start:.0f} s: "

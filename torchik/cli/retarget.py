@@ -12,11 +12,12 @@ from ..errors import InputError
 from ..method.limits import LimitSettings
 from ..method.settings import TrackerSettings
 from ..pipelines.retarget import LIMIT_TOLERANCE, retarget, save
-from .common import add_map_arguments
+from .common import add_map_arguments, add_subject_argument, subject_from
 
 
 def run(args: argparse.Namespace) -> int:
     from ..io import map_recording, read
+    from ..io.maps import default_map
     from ..method.models import load_model
 
     out = Path(args.out)
@@ -27,9 +28,11 @@ def run(args: argparse.Namespace) -> int:
     if not Path(args.recording).is_file():
         raise InputError(f"{args.recording}: no such file")
     recording = read(args.recording)
-    if args.map:
+    human = load_model("human66", subject_from(args.subject_from, args.map, say=(lambda _: None) if args.quiet else print))
+    map_name = args.map or default_map(recording.links, human)
+    if map_name:
         static = read(args.calibration) if args.calibration else None
-        recording, _ = map_recording(recording, args.map, load_model("human66"), static, args.calibration_frame)
+        recording, _ = map_recording(recording, map_name, human, static, args.calibration_frame)
     elif args.calibration:
         raise InputError("--calibration calibrates a --map; give the map too")
     threads = torch.get_num_threads()
@@ -77,6 +80,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--to", required=True, choices=("icub",), help="the robot: icub")
     parser.add_argument("--out", required=True, metavar="NPZ", help="the iCub trajectories to write (.npz)")
     add_map_arguments(parser, "the human models' links")
+    add_subject_argument(parser)
     parser.add_argument("--rate", type=float, default=100.0,
                         help="output rate in Hz, 50 or more (default 100); the recording is resampled to it")
     parser.add_argument("--gain", type=float, default=TrackerSettings.position_gain,

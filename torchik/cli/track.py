@@ -17,7 +17,18 @@ from ..method.models import MODELS
 from ..method.qp import BACKENDS
 from ..method.settings import SCHEMES, TrackerSettings
 from ..synthetic.scenarios import SCENARIOS
-from .common import Terminated, add_command, add_map_arguments, check_outputs, fraction, model_urdf, positive, torch_device
+from .common import (
+    Terminated,
+    add_command,
+    add_map_arguments,
+    add_subject_argument,
+    check_outputs,
+    fraction,
+    model_urdf,
+    positive,
+    subject_from,
+    torch_device,
+)
 
 MAX_FAILED = 0.01  # a restart now and then is recovery; one step in a hundred is a run not to trust
 
@@ -43,13 +54,18 @@ def add_parser(subparsers) -> None:
                         EXAMPLES)
     source = track.add_mutually_exclusive_group()
     source.add_argument("--scenario", default="walking", help=f"built-in scenario: {', '.join(SCENARIOS)} (default walking)")
-    source.add_argument("--input", metavar="FILE", help="a recording (.npz) or source file whose segments are the model's links")
+    source.add_argument("--input", metavar="FILE",
+                        help="a recording (.npz) or source file whose segments are the model's links")
     add_map_arguments(track)
     track.add_argument("--model", default="human66", choices=MODELS)
+    add_subject_argument(track)
     track.add_argument("--urdf", metavar="FILE", help="track with this URDF of --model instead, e.g. the model.urdf "
                        "`torchik diagnose` writes (--model still names the tracked links)")
     track.add_argument("--sensor-calibration", metavar="JSON", help="undo the sensor effects (offsets, biases, delays, "
                        "drift) in the calibration.json `torchik diagnose` wrote for this session, after --map")
+    track.add_argument("--position-targets", nargs="+", metavar="LINK",
+                       help="links with position targets besides the base (e.g. RightHand LeftHand RightFoot LeftFoot): "
+                            "the recording's segment origins, as MVNX, BVH and C3D files give them")
     track.add_argument("--duration", type=positive, default=10.0, help="scenario length in seconds (default 10)")
     track.add_argument("--rate", type=positive, default=100.0, help="scenario rate in Hz (default 100)")
     track.add_argument("--seed", type=int, default=0)
@@ -87,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from ..io import map_recording, read, recording_targets, save_trajectory, write_json
+    from ..io.maps import default_map
     from ..method.models import TRACKED_LINKS, load_model
     from ..pipelines.track import nominal_dt, output_fault, track_recording
     from ..synthetic.scenarios import scenario
@@ -104,19 +121,23 @@ def run(args: argparse.Namespace) -> int:
         # one subject's tensors are too small for torch to split, and on a busy machine its idle
         # threads spin and wait for each other: a step then takes several times longer
         torch.set_num_threads(1)
+    if args.subject_from and (args.urdf or args.model == "icub"):
+        raise InputError("--subject-from builds a human model: give it with --model human66 or human48, without --urdf")
+    subject = subject_from(args.subject_from, args.map, say=(lambda _: None) if args.quiet else print)
     if args.urdf:  # e.g. the augmented model a diagnosis wrote
         from ..pipelines.diagnosis.calibration import load_urdf_model
 
         model = load_urdf_model(args.urdf, args.model, device)
     else:
-        model = load_model(args.model, device=device)
+        model = load_model(args.model, subject, device=device)
     links = TRACKED_LINKS[args.model]
     if args.input:
         recording = read(args.input)
         source = args.input
-        if args.map:
+        map_name = args.map or default_map(recording.links, model)
+        if map_name:
             static = read(args.calibration) if args.calibration else None
-            recording, link_map = map_recording(recording, args.map, model, static, args.calibration_frame)
+            recording, link_map = map_recording(recording, map_name, model, static, args.calibration_frame)
             links = recording.links
             source += f" through map {link_map.name!r}"
     elif args.map or args.calibration:
@@ -135,11 +156,16 @@ def run(args: argparse.Namespace) -> int:
                                scheme=args.scheme, backend=args.backend, max_gap=args.max_gap)
     _check_stability(settings, nominal_dt(recording, settings))
     start = time.perf_counter()
+    position_links = None
+    if args.position_targets:
+        position_links = (model.base_link, *[name for name in args.position_targets if name != model.base_link])
     bounds = Plausibility(max_angular_velocity=args.max_angular_velocity, max_linear_velocity=args.max_linear_velocity)
-    trajectory, report = track_recording(model, recording, links, settings, progress=not args.quiet, plausibility=bounds)
+    trajectory, report = track_recording(model, recording, links, settings, progress=not args.quiet,
+                                         position_links=position_links, plausibility=bounds)
     report.update(source=source, device=str(device), wall_time_s=time.perf_counter() - start)
     if not args.quiet:  # beside a report on standard output, on standard error
-        _print_report(report, source, model.name, sys.stderr if args.report == "-" else sys.stdout)
+        _print_report(report, source, model.name or Path(model.source).stem,
+                      sys.stderr if args.report == "-" else sys.stdout)
     fault = output_fault(trajectory, report, args.max_failed)
     if fault:
         print(f"torchik track: {fault}", file=sys.stderr)
@@ -159,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
 
         start = time.perf_counter()
         targets = recording_targets(recording, links, dtype=model.dtype, device=model.device)
-        log_trajectory(args.rrd, model, links, trajectory, targets, urdf=args.urdf or model_urdf(args.model),
+        log_trajectory(args.rrd, model, links, trajectory, targets, urdf=args.urdf or model_urdf(args.model, subject),
                        progress=not args.quiet)
         if not args.quiet:
             print(f"wrote {args.rrd} in {time.perf_counter() - start:.1f} s; open it with: rerun {args.rrd}")

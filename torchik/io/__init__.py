@@ -1,15 +1,15 @@
 """Motion data: the recording format, readers for Xsens MVNX, BVH and C3D (Plug-in Gait), link
 maps, the conversion of a recording to tracker targets, and the files torchik writes."""
 
-from .recording import Recording, RecordingError, angular_velocity_from_orientations, load_recording, save_recording
-from .mvnx import read_mvnx
 from .bvh import read_bvh
 from .c3d import read_c3d
+from .files import replacing, write_json
 from .formats import READERS, read
 from .maps import LinkMap, apply_map, calibrate, load_map, map_recording
+from .mvnx import read_mvnx
+from .recording import Recording, RecordingError, angular_velocity_from_orientations, load_recording, save_recording
 from .targets import recording_targets
 from .trajectory import save_trajectory
-from .files import replacing, write_json
 
 __all__ = ["Recording", "RecordingError", "load_recording", "save_recording", "read", "READERS", "read_mvnx",
            "read_bvh", "read_c3d", "LinkMap", "load_map", "apply_map", "calibrate", "map_recording",

@@ -18,6 +18,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -131,7 +132,7 @@ def _parse(path: Path) -> tuple[list[_Joint], np.ndarray, float]:
         raise RecordingError(f"{path}: no ROOT joint; is this a BVH file?")
     if stack:
         raise RecordingError(f"{path}: the hierarchy ends with {len(stack)} unclosed joint(s)")
-    header = {}
+    header: dict[str, Any] = {}  # frames (int), dt (float)
     while k < len(lines) and len(header) < 2:
         text = lines[k].strip()
         k += 1
@@ -192,6 +193,11 @@ def _forward_kinematics(joints: list[_Joint], motion: np.ndarray) -> tuple[np.nd
     return R, p
 
 
+def _plain(name: str) -> str:
+    """A joint's name without its namespace (Mixamo's `mixamorig:Head` is `Head`)."""
+    return name.rsplit(":", 1)[-1]
+
+
 def _rest_pose(joints: list[_Joint], n_channels: int, to_world: np.ndarray, names) -> dict | None:
     """The skeleton with every rotation channel at zero, as a calibration reference: the joints'
     world rotations and the subject's up and left directions (hips to head; right-side joints to
@@ -205,7 +211,7 @@ def _rest_pose(joints: list[_Joint], n_channels: int, to_world: np.ndarray, name
     R, p = to_world @ R[0], p[0] @ to_world.T
     left_side = [i for i, n in enumerate(names) if re.search(r"(^L|Left|_L$|^l_)", n)]
     right_side = [i for i, n in enumerate(names) if re.search(r"(^R|Right|_R$|^r_)", n)]
-    head = [i for i, n in enumerate(names) if n.lower() in ("head", "neck")]
+    head = [i for i, n in enumerate(names) if _plain(n).lower() in ("head", "neck")]
     if not (left_side and right_side and head):
         return None
     hips = p[0]
@@ -257,7 +263,7 @@ def read_bvh(path: str | Path, units: str = "auto", scale: float | None = None, 
     p = p * scale
     names = tuple(j.name for j in joints)
     if base_link is None:
-        named = [n for n in names if n.lower() in ("hips", "pelvis", "hip")]
+        named = [n for n in names if _plain(n).lower() in ("hips", "pelvis", "hip")]
         base_link = named[0] if named else names[0]
     elif base_link not in names:
         raise RecordingError(f"{path}: base link {base_link!r} is not a joint; joints: {list(names)}")
@@ -273,7 +279,11 @@ def read_bvh(path: str | Path, units: str = "auto", scale: float | None = None, 
     meta = dict(source=str(path), format="bvh", units=units if units != "auto" else None, metres_per_unit=scale,
                 up=up, frame_rate=1.0 / dt,
                 channels={j.name: j.channels for j in joints}, rest_pose=rest, missing_frames=missing,
+                # the bones: each joint's parent and OFFSET (m, torchik's axes), what builds a subject's model
+                skeleton=dict(format="bvh", parents={j.name: names[j.parent] if j.parent >= 0 else None for j in joints},
+                              offsets={j.name: (to_world @ j.offset * scale).tolist() for j in joints}),
                 note="segment frames are the BVH bones' own: calibrate them to a model with a link map")
     return Recording(time=time, links=names, orientation=R,
                      angular_velocity=angular_velocity_from_orientations(R, time),
-                     base_link=base_link, base_position=p[:, base].copy(), base_linear_velocity=velocity, meta=meta)
+                     base_link=base_link, base_position=p[:, base].copy(), base_linear_velocity=velocity, meta=meta,
+                     position=p)

@@ -39,6 +39,41 @@ def _labels(points_parameters: dict) -> list[str]:
     return [label.strip() for label in labels]
 
 
+# Plug-in Gait's subject lengths (PROCESSING, in the file's units) by the segment they measure
+_PROCESSING_LENGTHS = {"RFE": "RFemurLength", "LFE": "LFemurLength", "RTI": "RTibiaLength", "LTI": "LTibiaLength",
+                       "RFO": "RFootLength", "LFO": "LFootLength"}
+# segments measured between two joint centres that are bone origins: the clavicle's origin is the
+# shoulder joint, the humerus's the elbow, the radius's the wrist
+_ORIGIN_LENGTHS = {"RHU": ("RCLO", "RHUO"), "LHU": ("LCLO", "LHUO"), "RRA": ("RHUO", "RRAO"), "LRA": ("LHUO", "LRAO")}
+
+
+# each segment's proximal joint centre, where a model's link has its origin: the hip joint centre,
+# and the origins of the parent bones (Plug-in Gait puts a bone's origin at its distal joint)
+PROXIMAL_JOINT = {"PEL": "PELO", "RFE": "RHJC", "LFE": "LHJC", "RTI": "RFEO", "LTI": "LFEO", "RFO": "RTIO", "LFO": "LTIO",
+                  "RHU": "RCLO", "LHU": "LCLO", "RRA": "RHUO", "LRA": "LHUO", "RHN": "RRAO", "LHN": "LRAO"}
+
+
+def _plug_in_gait_skeleton(parameters, xyz: np.ndarray, valid: np.ndarray, index: dict, unit: str) -> dict:
+    """The subject's measures a Plug-in Gait file holds: height (m) and mass (kg) from PROCESSING,
+    segment lengths (m) by Plug-in Gait segment, from PROCESSING or as the median distance between
+    the joint centres that bound the segment."""
+    processing = parameters.get("PROCESSING", {})
+
+    def value(name):
+        entry = processing.get(name)
+        return float(np.asarray(entry["value"]).ravel()[0]) if entry is not None else None
+
+    lengths = {seg: value(name) * UNIT_SCALE[unit] for seg, name in _PROCESSING_LENGTHS.items() if value(name)}
+    for seg, (a, b) in _ORIGIN_LENGTHS.items():
+        if a in index and b in index:
+            seen = valid[:, index[a]] & valid[:, index[b]]
+            if seen.any():
+                lengths[seg] = float(np.median(np.linalg.norm(xyz[seen, index[a]] - xyz[seen, index[b]], axis=-1)))
+    height = value("Height")
+    return dict(format="c3d", height=height * UNIT_SCALE[unit] if height else None, mass=value("Bodymass"),
+                lengths=lengths)
+
+
 def _declared_frames(path: Path, parameters: dict) -> int | None:
     """The frame count the file's header declares (None when it cannot say). ezc3d rewrites its
     parsed header from the frames it could read, so a cut file looks whole there: the raw header's
@@ -125,8 +160,13 @@ def read_c3d(path: str | Path, base_link: str = "PEL", units: str | None = None)
     missing = {s: int((~ok).sum()) for s, ok in zip(segments, present) if (~ok).any()}
     meta = dict(source=str(path), format="c3d", frame_rate=rate, units=dict(position=unit, converted_to="m"),
                 first_frame=int(c3d["header"]["points"]["first_frame"]), triad_max_deviation=worst,
-                missing_frames=missing,
+                missing_frames=missing, skeleton=_plug_in_gait_skeleton(c3d["parameters"], xyz, valid, index, unit),
                 note="segment frames are Plug-in Gait's (anterior, lateral, proximal): calibrate them with a link map")
-    return Recording(time=time, links=tuple(segments), orientation=R,
+    position = np.full((T, len(segments), 3), np.nan)  # NaN: a segment without a joint centre, or not seen
+    for i, segment in enumerate(segments):
+        point = PROXIMAL_JOINT.get(segment)
+        if point in index:
+            position[:, i] = np.where(valid[:, index[point], None], xyz[:, index[point]], np.nan)
+    return Recording(time=time, links=tuple(segments), orientation=R, position=position,
                      angular_velocity=angular_velocity_from_orientations(R, time), base_link=base_link,
                      base_position=base_position, base_linear_velocity=velocity, meta=meta)

@@ -1,7 +1,8 @@
 """Link maps: from a source's segments to a model's links, with constant frame offsets.
 
-A map is a TOML file (see models/maps/). For each model link it names the source segment and the
-constant rotation C between their frames, R_link = R_segment C, given as one of
+A map is a TOML file (the built-in ones: torchik/data/maps/, also shown as models/maps/). For each
+model link it names the source segment and the constant rotation C between their frames,
+R_link = R_segment C, given as one of
 
 - `link_in_segment_rpy = [r, p, y]`: C = R(rpy), the link frame in the segment frame;
 - `segment_in_link_rpy = [r, p, y]`: C = R(rpy)^T (how robot models publish "fake" frames);
@@ -18,24 +19,26 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from importlib.resources.abc import Traversable
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from ..data import maps_folder
 from ..method import so3
 from ..method.kinematics import KinematicModel
 from .recording import Recording, RecordingError
-
-MAPS_DIR = Path(__file__).resolve().parents[2] / "models" / "maps"
 
 
 @dataclass(frozen=True)
 class LinkEntry:
     link: str
-    segment: str
+    segment: str  # the source segment (the first of `alternatives` until resolved against a recording)
     offset: np.ndarray | None  # C [3,3], or None when it is to be calibrated
+    alternatives: tuple[str, ...] = ()  # segments that can stand for the link, in order of preference
+    optional: bool = False  # a recording without any of them leaves the link out instead of failing
 
 
 @dataclass(frozen=True)
@@ -52,6 +55,7 @@ class LinkMap:
     source: str
     calibration: dict | None = None  # where the calibrated offsets came from
     calibration_frame: int | str = 0  # the default reference frame: an index, or "rest" (a BVH's rest pose)
+    left_out: tuple[str, ...] = ()  # optional links the recording it was resolved against has no segment for
 
     @property
     def links(self) -> tuple[str, ...]:
@@ -77,14 +81,14 @@ def calibration_frame(text: str) -> int | str:
 
 def built_in_maps() -> list[str]:
     """The names of the maps torchik ships."""
-    return sorted(p.stem for p in MAPS_DIR.glob("*.toml"))
+    return sorted(p.name.removesuffix(".toml") for p in maps_folder().iterdir() if p.name.endswith(".toml"))
 
 
 def load_map(name_or_path: str | Path) -> LinkMap:
-    """A map by file path or built-in name (a file in models/maps/ without its suffix)."""
-    path = Path(name_or_path)
-    if not path.suffix:
-        path = MAPS_DIR / f"{name_or_path}.toml"
+    """A map by file path or built-in name (a file in torchik/data/maps/ without its suffix)."""
+    path: Path | Traversable = Path(name_or_path)
+    if not Path(name_or_path).suffix:
+        path = maps_folder() / f"{name_or_path}.toml"
     if not path.is_file():
         raise RecordingError(f"no link map {str(name_or_path)!r}; built-in maps: {', '.join(built_in_maps())}")
     try:
@@ -110,7 +114,10 @@ def load_map(name_or_path: str | Path) -> LinkMap:
             offset = _rpy(item["segment_in_link_rpy"], where).T
         else:
             offset = None
-        entries.append(LinkEntry(link, item["source"], offset))
+        alternatives = item["source"] if isinstance(item["source"], list) else [item["source"]]
+        if not alternatives or not all(isinstance(a, str) for a in alternatives):
+            raise RecordingError(f"{where}: 'source' must be a segment name or a list of them")
+        entries.append(LinkEntry(link, alternatives[0], offset, tuple(alternatives), bool(item.get("optional", False))))
     base = spec["base"]
     if base.get("link") not in spec["links"]:
         raise RecordingError(f"{path}: base.link {base.get('link')!r} is not one of the mapped links")
@@ -120,8 +127,86 @@ def load_map(name_or_path: str | Path) -> LinkMap:
         raise RecordingError(f"{path}: calibration.base_forward_axis must be 'x', 'y' or 'z'")
     if any(e.offset is None for e in entries) and pose not in ("tpose", "npose"):
         raise RecordingError(f"{path}: calibrated links need calibration.reference_pose = 'tpose' or 'npose'")
-    return LinkMap(spec["name"], spec["model"], tuple(entries), base["link"], spec["links"][base["link"]]["source"],
+    base_entry = next(e for e in entries if e.link == base["link"])
+    return LinkMap(spec["name"], spec["model"], tuple(entries), base["link"], base_entry.segment,
                    pose, calibration.get("base_forward_axis"), str(path), None, calibration.get("frame", 0))
+
+
+def _find(alternatives: tuple[str, ...], names: tuple[str, ...]) -> str | None:
+    """The recording's segment for the first alternative it has: by exact name, else by the name after
+    a namespace (`mixamorig:Hips` is `Hips`); None when it has none."""
+    plain: dict[str, str] = {}
+    for name in names:
+        plain.setdefault(name.rsplit(":", 1)[-1], name)
+    for wanted in alternatives:
+        if wanted in names:
+            return wanted
+        if wanted in plain:
+            return plain[wanted]
+    return None
+
+
+def missing_segments(link_map: LinkMap, names) -> list[str]:
+    """The segments (one name per required link: its first alternative) that recordings with these
+    segment names lack for this map."""
+    names = tuple(names)
+    return [e.segment for e in link_map.entries
+            if not e.optional and _find(e.alternatives or (e.segment,), names) is None]
+
+
+def resolve(link_map: LinkMap, names) -> LinkMap:
+    """The map against a recording's segment names: each link's source the recording's own name for
+    it (alternatives and namespaces resolved), optional links it has no segment for left out.
+    RecordingError naming the segments it lacks for required links."""
+    names = tuple(names)
+    missing = missing_segments(link_map, names)
+    if missing:
+        raise RecordingError(f"map {link_map.name!r} needs segments {missing} that the recording lacks; "
+                             f"it has {list(names)}")
+    entries, left_out = [], list(link_map.left_out)
+    for e in link_map.entries:
+        found = _find(e.alternatives or (e.segment,), names)
+        if found is None:
+            left_out.append(e.link)
+        else:
+            entries.append(replace(e, segment=found, alternatives=(found,)))
+    base = next((e for e in entries if e.link == link_map.base_link), None)
+    if base is None:
+        raise RecordingError(f"map {link_map.name!r}: its base link {link_map.base_link!r} is optional and the "
+                             f"recording has no segment for it")
+    return replace(link_map, entries=tuple(entries), base_segment=base.segment, left_out=tuple(left_out))
+
+
+def model_family(model: KinematicModel) -> str:
+    """What a map's `model` names for this model: "icub", or "human" for Human66 and Human48."""
+    return "icub" if "icub" in (model.name or "").lower() else "human"
+
+
+def default_map(names, model: KinematicModel) -> str | None:
+    """The map a recording with these segment names needs when none is given: "auto" when the
+    segments are not the model's links (its base link is not among them), else None."""
+    return None if model.base_link in tuple(names) else "auto"
+
+
+def choose_map(names, family: str = "human") -> str:
+    """The built-in map (its name) for a recording with these segment names, into models of `family`:
+    of the maps whose required segments the recording has, the one mapping the most links.
+    RecordingError naming the closest map and the segments it misses when none fits."""
+    names = tuple(names)
+    candidates = []
+    for name in built_in_maps():
+        link_map = load_map(name)
+        if link_map.model == family:
+            missing = missing_segments(link_map, names)
+            mapped = sum(_find(e.alternatives or (e.segment,), names) is not None for e in link_map.entries)
+            candidates.append((len(missing), -mapped, name, missing))
+    if not candidates:
+        raise RecordingError(f"no built-in map into {family} models")
+    n_missing, _, best, missing = min(candidates)
+    if n_missing:
+        raise RecordingError(f"no built-in map fits the recording's segments {list(names)}; the closest, {best!r}, "
+                             f"misses {missing}: give --map FILE.toml (see models/maps/ for the format)")
+    return best
 
 
 def reference_configuration(model: KinematicModel, pose: str) -> torch.Tensor:
@@ -143,14 +228,14 @@ def calibrate(link_map: LinkMap, recording: Recording, model: KinematicModel, fr
     todo = [i for i, e in enumerate(link_map.entries) if e.offset is None]
     if not todo:
         return link_map
+    link_map = resolve(link_map, recording.links)
+    todo = [i for i, e in enumerate(link_map.entries) if e.offset is None]
     index = {name: i for i, name in enumerate(recording.links)}
-    missing = sorted({e.segment for e in link_map.entries} - set(index))
-    if missing:
-        raise RecordingError(f"map {link_map.name!r} needs segments {missing} that the recording lacks; "
-                             f"it has {list(recording.links)}")
     frame = link_map.calibration_frame if frame is None else frame
     ids = [index[e.segment] for e in link_map.entries]
     p0, R0, _ = model.zero_configuration(1)
+    if link_map.reference_pose is None:
+        raise RecordingError(f"map {link_map.name!r} calibrates offsets but names no calibration.reference_pose")
     kin = model(p0, R0, reference_configuration(model, link_map.reference_pose), link_map.links, jacobian=False)
     heading = np.eye(3)
     if frame == "rest":
@@ -161,7 +246,8 @@ def calibrate(link_map: LinkMap, recording: Recording, model: KinematicModel, fr
         R_source = np.asarray(rest["orientation"])[ids]
         up, left = np.asarray(rest["up"]), np.asarray(rest["left"])
         heading = np.stack((np.cross(left, up), left, up), axis=1)  # columns: forward, left, up
-        k, time_s = "rest", None
+        k: int | str = "rest"
+        time_s = None
     else:
         k = int(frame)
         if not 0 <= k < len(recording.time):
@@ -177,12 +263,10 @@ def calibrate(link_map: LinkMap, recording: Recording, model: KinematicModel, fr
     entries = list(link_map.entries)
     for i in todo:
         e = entries[i]
-        entries[i] = LinkEntry(e.link, e.segment, R_source[i].T @ R_reference[i])
+        entries[i] = replace(e, offset=R_source[i].T @ R_reference[i])  # keeps alternatives and optional
     calibrated = dict(frame=k, time_s=time_s, reference_pose=link_map.reference_pose,
                       recording=recording.meta.get("source"))
-    return LinkMap(link_map.name, link_map.model, tuple(entries), link_map.base_link, link_map.base_segment,
-                   link_map.reference_pose, link_map.base_forward_axis, link_map.source, calibrated,
-                   link_map.calibration_frame)
+    return replace(link_map, entries=tuple(entries), calibration=calibrated)
 
 
 def apply_map(recording: Recording, link_map: LinkMap, model: KinematicModel | None = None,
@@ -190,38 +274,45 @@ def apply_map(recording: Recording, link_map: LinkMap, model: KinematicModel | N
     """The recording in the model's link names and frames. A map with offsets still to calibrate is
     calibrated on this recording's `calibration_frame` (an index or "rest"; default: the map's
     calibration.frame, else 0), which needs `model`."""
+    link_map = resolve(link_map, recording.links)
     index = {name: i for i, name in enumerate(recording.links)}
-    missing = sorted({e.segment for e in link_map.entries} - set(index))
-    if missing:
-        raise RecordingError(f"map {link_map.name!r} needs segments {missing} that the recording lacks; "
-                             f"it has {list(recording.links)}")
     if recording.base_link != link_map.base_segment:
         raise RecordingError(f"map {link_map.name!r} takes the base position from segment {link_map.base_segment!r}; "
-                             f"the recording's base is {recording.base_link!r} (read it with base_link={link_map.base_segment!r})")
+                             f"the recording's base is {recording.base_link!r} "
+                             f"(read it with base_link={link_map.base_segment!r})")
     if any(e.offset is None for e in link_map.entries):
         if model is None:
             raise RecordingError(f"map {link_map.name!r} calibrates offsets: give the model (or calibrate() first)")
         link_map = calibrate(link_map, recording, model, calibration_frame)
     ids = [index[e.segment] for e in link_map.entries]
-    offsets = np.stack([e.offset for e in link_map.entries])
+    offsets = np.stack([_given(e.offset) for e in link_map.entries])
     R = recording.orientation[:, ids] @ offsets
     known = ~np.isnan(R).any(axis=(-1, -2))
     if known.any():
         R[known] = so3.project(torch.from_numpy(R[known])).numpy()
     meta = dict(recording.meta, link_map=dict(name=link_map.name, file=link_map.source, calibration=link_map.calibration,
-                                              segments={e.link: e.segment for e in link_map.entries}))
+                                              segments={e.link: e.segment for e in link_map.entries},
+                                              left_out=list(link_map.left_out)))
     return Recording(time=recording.time, links=link_map.links, orientation=R,
                      angular_velocity=recording.angular_velocity[:, ids], base_link=link_map.base_link,
                      base_position=recording.base_position, base_linear_velocity=recording.base_linear_velocity,
-                     meta=meta)
+                     meta=meta, position=None if recording.position is None else recording.position[:, ids])
 
 
 def map_recording(recording: Recording, map_name: str | Path, model: KinematicModel, static: Recording | None = None,
                   calibration_frame: int | str | None = None) -> tuple[Recording, LinkMap]:
-    """A recording through a map (a built-in name or a .toml file) into `model`'s links: the map's
+    """A recording through a map (a built-in name, a .toml file, or "auto": `choose_map`'s) into `model`'s links: the map's
     offsets calibrated on `static`, a static trial, when given (else on the recording itself,
     for a map that calibrates). Returns the mapped recording and the map used."""
+    if str(map_name) == "auto":
+        map_name = choose_map(recording.links, model_family(model))
     link_map = load_map(map_name)
     if static is not None:
         link_map = calibrate(link_map, static, model, calibration_frame)
     return apply_map(recording, link_map, model, calibration_frame), link_map
+
+
+def _given(offset: np.ndarray | None) -> np.ndarray:
+    """An offset that calibration has filled in."""
+    assert offset is not None
+    return offset

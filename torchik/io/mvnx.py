@@ -2,8 +2,8 @@
 
 Conventions (checked on a real MVN 2019 export, see ../shared/data/README.md): `orientation` is a
 quaternion w, x, y, z, segment to global; `angularVelocity` is in the global frame, rad/s;
-`position` and `velocity` are global, m and m/s. Normal frames carry `index` (frames since the start; time = index / frameRate, exact) and `time`
-(ms, rounded, used when there is no index).
+`position` and `velocity` are global, m and m/s. Normal frames carry `index` (frames since the
+start; time = index / frameRate, exact) and `time` (ms, rounded, used when there is no index).
 The calibration frames (`identity`, `tpose`, `tpose-isb`) go into meta["calibration"].
 
 The file is parsed as a stream (ElementTree.iterparse, elements cleared once read), so memory holds
@@ -39,13 +39,27 @@ def _numbers(text: str | None, count: int, what: str, where: str) -> np.ndarray:
     return values
 
 
+def _points(segment: ET.Element, where: str) -> dict[str, list[float]]:
+    """A <segment>'s <points>: label -> pos_b, the point in the segment frame (m)."""
+    found: dict[str, list[float]] = {}
+    for point in segment.iter():
+        label = point.get("label")
+        if _local(point.tag) == "point" and label:
+            pos = next((c for c in point if _local(c.tag) == "pos_b"), None)
+            if pos is not None:
+                found[label] = _numbers(pos.text, 3, f"point {label}", where).tolist()
+    return found
+
+
 def read_mvnx(path: str | Path, base_link: str = "Pelvis") -> Recording:
     """Read an MVNX file. Raises RecordingError naming the file and the frame or line at fault."""
     path = readable_file(path)
     segments: list[str] = []
     frame_rate, version, subject = None, None, {}
-    times, data = [], {name: [] for name in FIELDS}
+    times: list[float] = []
+    data: dict[str, list] = {name: [] for name in FIELDS}
     calibration = {}
+    points: dict[str, dict[str, list[float]]] = {}
     try:
         for event, elem in ET.iterparse(path, events=("start", "end")):
             tag = _local(elem.tag)
@@ -58,6 +72,7 @@ def read_mvnx(path: str | Path, base_link: str = "Pelvis") -> Recording:
                 continue
             if tag == "segment" and elem.get("label"):
                 segments.append(elem.get("label"))
+                points[elem.get("label")] = _points(elem, f"{path}: segment {elem.get('label')}")
                 elem.clear()
             elif tag == "frame":
                 n = len(segments)
@@ -109,8 +124,10 @@ def read_mvnx(path: str | Path, base_link: str = "Pelvis") -> Recording:
                 subject={k: v for k, v in subject.items() if k in ("label", "frameRate", "segmentCount", "configuration",
                                                                      "recDate", "userScenario")},
                 units=dict(time="s", position="m", angular_velocity="rad/s"),
-                calibration=calibration)
+                calibration=calibration,
+                # each segment's joints and landmarks in its own frame (m): what builds the subject's model
+                skeleton=dict(format="mvnx", points=points))
     return Recording(time=time, links=tuple(segments), orientation=rotation,
                      angular_velocity=np.stack(data["angularVelocity"]).reshape(T, n, 3),
                      base_link=base_link, base_position=position[:, base].copy(),
-                     base_linear_velocity=velocity[:, base].copy(), meta=meta)
+                     base_linear_velocity=velocity[:, base].copy(), meta=meta, position=position)

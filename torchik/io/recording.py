@@ -13,6 +13,7 @@ One `.npz` file (NumPy, no pickles):
 | `base_linear_velocity` | float64 [T,3] | m/s, world |
 | `joint_names` | str [dof] | optional, with `joint_positions` |
 | `joint_positions` | float64 [T,dof] | optional ground truth (synthetic data) |
+| `position` | float64 [T,n,3] | optional: each segment's origin (its proximal joint), m, world; NaN where missing |
 | `meta` | str | JSON: source file, subject, units, frame rate, calibration frames, ... |
 
 A frame that a source could not measure (an occluded marker, a dropped packet) holds NaN for the
@@ -25,6 +26,7 @@ import json
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -52,6 +54,7 @@ class Recording:
     joint_names: tuple[str, ...] | None = None
     joint_positions: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
+    position: np.ndarray | None = None  # [T,n,3] each segment's origin, m, world (position targets off the base)
 
     def __post_init__(self):
         self.links = tuple(self.links)
@@ -79,7 +82,7 @@ def validate(rec: Recording, where: str = "recording") -> None:
     def fail(message: str):
         raise RecordingError(f"{where}: {message}")
 
-    arrays = dict(time=rec.time, orientation=rec.orientation, angular_velocity=rec.angular_velocity,
+    arrays: dict[str, Any] = dict(time=rec.time, orientation=rec.orientation, angular_velocity=rec.angular_velocity,
                   base_position=rec.base_position, base_linear_velocity=rec.base_linear_velocity)
     for name, a in arrays.items():
         if not isinstance(a, np.ndarray) or a.dtype != np.float64:
@@ -119,10 +122,12 @@ def validate(rec: Recording, where: str = "recording") -> None:
                  f"{error[int(np.argmax(bad))]:.2g}, det = {det[int(np.argmax(bad))]:.3g})")
     if (rec.joint_names is None) != (rec.joint_positions is None):
         fail("joint_names and joint_positions come together")
-    if rec.joint_positions is not None:
+    if rec.joint_positions is not None and rec.joint_names is not None:
         if rec.joint_positions.dtype != np.float64 or rec.joint_positions.shape != (T, len(rec.joint_names)):
             fail(f"joint_positions must be float64 [{T},{len(rec.joint_names)}], got "
                  f"{rec.joint_positions.dtype} {list(rec.joint_positions.shape)}")
+    if rec.position is not None and (rec.position.dtype != np.float64 or rec.position.shape != (T, n, 3)):
+        fail(f"position must be float64 [{T},{n},3], got {rec.position.dtype} {list(rec.position.shape)}")
     try:
         json.dumps(rec.meta)
     except TypeError as exc:
@@ -132,12 +137,14 @@ def validate(rec: Recording, where: str = "recording") -> None:
 def save_recording(rec: Recording, path: str | Path) -> Path:
     """Write a recording as `.npz` (no pickles). Returns the path."""
     path = Path(path)
-    arrays = dict(time=rec.time, links=np.array(rec.links, dtype=str), orientation=rec.orientation,
+    arrays: dict[str, Any] = dict(time=rec.time, links=np.array(rec.links, dtype=str), orientation=rec.orientation,
                   angular_velocity=rec.angular_velocity, base_link=np.array(rec.base_link, dtype=str),
                   base_position=rec.base_position, base_linear_velocity=rec.base_linear_velocity,
                   meta=np.array(json.dumps(rec.meta), dtype=str))
     if rec.joint_positions is not None:
         arrays.update(joint_names=np.array(rec.joint_names, dtype=str), joint_positions=rec.joint_positions)
+    if rec.position is not None:
+        arrays.update(position=rec.position)
     with open(path, "wb") as f:  # a file object: np.savez would append .npz to other suffixes
         np.savez(f, **arrays)
     return path
@@ -181,7 +188,7 @@ def load_recording(path: str | Path) -> Recording:
             base_link=str(contents["base_link"]), base_position=contents["base_position"],
             base_linear_velocity=contents["base_linear_velocity"],
             joint_names=tuple(str(x) for x in contents["joint_names"]) if "joint_names" in contents else None,
-            joint_positions=contents.get("joint_positions"), meta=meta)
+            joint_positions=contents.get("joint_positions"), meta=meta, position=contents.get("position"))
     except RecordingError as exc:
         raise RecordingError(f"{path}: {str(exc).removeprefix('recording: ')}") from None
 

@@ -35,18 +35,19 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 
-from . import so3
 from ..errors import InputError
+from . import so3
 from .kinematics import KinematicModel
 from .metrics import orientation_error
 from .qp import QPProblem, make_backend
 from .residual import orientation_residual
+from .state import State, TargetSequence, Trajectory
 from .targets import Targets, clean_targets
 from .task import TaskStructure, normal_equations
-from .state import State, TargetSequence, Trajectory
 
 
 @dataclass(frozen=True)
@@ -145,7 +146,7 @@ class WholeBodyIK(InstantaneousIK):
         links = tuple(dict.fromkeys(self.position_links + self.orientation_links))
         self._selection = model.select(links)
         index = {name: i for i, name in enumerate(links)}
-        long = dict(dtype=torch.long, device=model.device)
+        long: dict[str, Any] = dict(dtype=torch.long, device=model.device)
         self._p = torch.tensor([index[n] for n in self.position_links], **long)
         self._o = torch.tensor([index[n] for n in self.orientation_links], **long)
         self._task = TaskStructure.build(model, self.orientation_links, self.position_links)
@@ -178,12 +179,15 @@ class WholeBodyIK(InstantaneousIK):
         # Gauss-Newton iterations (the method, not links or subjects); the last pass only evaluates
         for iteration in range(self.max_iterations + 1):
             if self._rotations_only:
+                assert self._orientation_selection is not None  # rotations only: there are orientation targets
                 kin = model.rotations(R, s, self._orientation_selection, joint_axes=True)
                 r_p, R_hat = x.position - p.unsqueeze(1), kin.rotation
             else:
                 kin = model(p, R, s, self._selection, jacobian_links=self._task.position,
                             jacobian=self._task.position is not None, joint_axes=True)
+                assert kin.position is not None
                 r_p, R_hat = x.position - kin.position.index_select(1, self._p), kin.rotation.index_select(1, self._o)
+            assert kin.joint_axes is not None  # asked for
             r_o = orientation_residual(x.rotation, R_hat)
             error = torch.cat((r_p, r_o), 1).norm(dim=-1)
             converged = (error if valid is None else error * valid).amax(-1) <= self.tolerance
@@ -241,7 +245,7 @@ class Pairs:
             parents.append(parent)
             children.append(c)
             joint_lists.append((M[c] & ~M[parent]).nonzero().flatten().tolist())
-        owner = {}
+        owner: dict[int, int] = {}
         for pair, js in enumerate(joint_lists):
             for j in js:
                 if j in owner:
@@ -255,21 +259,23 @@ class Pairs:
         for pair, js in enumerate(joint_lists):
             joints[pair, :len(js)] = torch.tensor(js, dtype=torch.long)
             valid[pair, :len(js)] = True
-        row_lists = [[] for _ in joint_lists]
-        if model.linear_limits is not None:
-            A = model.linear_limits.A.cpu()
+        row_lists: list[list[int]] = [[] for _ in joint_lists]
+        limits = model.linear_limits
+        if limits is not None:
+            A = limits.A.cpu()
             for r in range(A.shape[0]):
                 pairs = {owner.get(j) for j in A[r].nonzero().flatten().tolist()}
-                if len(pairs) != 1 or None in pairs:
-                    raise InputError(f"coupled limit {model.linear_limits.names[r]!r} spans several pairs of targets")
-                row_lists[pairs.pop()].append(r)
+                owning = pairs.pop() if len(pairs) == 1 else None
+                if owning is None:
+                    raise InputError(f"coupled limit {limits.names[r]!r} spans several pairs of targets")
+                row_lists[owning].append(r)
         m = max([1] + [len(rs) for rs in row_lists])
         rows = torch.zeros(P, m, k, dtype=model.dtype)
         row_index = torch.zeros(P, m, dtype=torch.long)
         row_valid = torch.zeros(P, m, dtype=torch.bool)
         for pair, rs in enumerate(row_lists):
             for i, r in enumerate(rs):
-                rows[pair, i] = model.linear_limits.A.cpu()[r, joints[pair]] * valid[pair]
+                rows[pair, i] = A[r, joints[pair]] * valid[pair]
                 row_index[pair, i], row_valid[pair, i] = r, True
         to = lambda t: t.to(model.device)  # noqa: E731
         return cls(to(torch.tensor(parents)), to(torch.tensor(children)), to(joints), to(valid), to(rows),
@@ -347,6 +353,7 @@ class PairwiseIK(InstantaneousIK):
             if iteration == self.max_iterations or not bool(active.any()):
                 break
             # a pair's Jacobian: its joints' axes in the parent's frame, rows [B,P,k,3]
+            assert kin.joint_axes is not None  # asked for
             axes = (kin.joint_axes[:, flat_joints].view(B, P, k, 3) @ R_parent) * valid[..., None]
             H = axes @ axes.transpose(-1, -2) + self._regulariser
             g = -(axes @ residual[..., None]).squeeze(-1)
@@ -354,7 +361,7 @@ class PairwiseIK(InstantaneousIK):
             lb, ub = _increment_bounds(s_pair, self._lower, self._upper)
             lb, ub = lb * valid, ub * valid
             h = None
-            if G is not None:
+            if G is not None and self._b is not None:
                 h = (self._b - (G @ s_pair[..., None]).squeeze(-1)).reshape(B * P, m)
             delta = self.backend.solve(QPProblem(H.reshape(B * P, k, k), g.reshape(B * P, k), lb.reshape(B * P, k),
                                                  ub.reshape(B * P, k), None if G is None else G.reshape(B * P, m, k),

@@ -34,10 +34,10 @@ def baumgarte_step(R: torch.Tensor, omega: torch.Tensor, dt: torch.Tensor | floa
     determinant = (R * cofactor).sum((-2, -1), keepdim=True) / 3.0  # each column gives det R
     pull = cofactor / determinant - R  # R^-T - R
     if not isinstance(dt, torch.Tensor):
-        dt = float(dt)
-        return torch.add(R, torch.add(R @ body, pull, alpha=0.5 * min(rho, 1.0 / dt)), alpha=dt)
-    rho, dt = torch.clamp(1.0 / dt, max=rho)[..., None], dt[..., None]  # [B,1,1]
-    return torch.addcmul(R, dt, torch.addcmul(R @ body, 0.5 * rho, pull))
+        step = float(dt)
+        return torch.add(R, torch.add(R @ body, pull, alpha=0.5 * min(rho, 1.0 / step)), alpha=step)
+    gain, steps = torch.clamp(1.0 / dt, max=rho)[..., None], dt[..., None]  # [B,1,1]
+    return torch.addcmul(R, steps, torch.addcmul(R @ body, 0.5 * gain, pull))
 
 
 _COLUMN_CYCLES: dict[torch.device, tuple[torch.Tensor, torch.Tensor]] = {}

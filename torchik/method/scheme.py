@@ -61,10 +61,11 @@ class SchemeHistory:
         """Forget every step; velocity [B,6+n]: the state's, for the slope's shape."""
         self._previous: Targets | None = None
         self._before: Targets | None = None
-        self._previous_valid = self._before_valid = None
+        self._previous_valid: tuple[torch.Tensor, torch.Tensor] | None = None
+        self._before_valid: tuple[torch.Tensor, torch.Tensor] | None = None
         self.steps = 0
         self.last_dt: float | torch.Tensor = self.nominal_dt
-        self.velocity_slope = None if velocity is None else torch.zeros_like(velocity)
+        self.velocity_slope = torch.zeros(0) if velocity is None else torch.zeros_like(velocity)
 
     def forget(self, subjects: torch.Tensor, previous: bool) -> None:
         """Subjects [B] bool restarted: their velocity slope is zero and the targets two steps back

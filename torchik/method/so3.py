@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import torch
 
-
 _HAT_BASIS: dict[tuple[torch.dtype, torch.device], torch.Tensor] = {}
 _IDENTITY: dict[tuple[torch.dtype, torch.device], torch.Tensor] = {}
 

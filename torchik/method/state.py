@@ -138,5 +138,6 @@ class TrajectoryBuffer:
         """The steps put so far as a Trajectory (views of the buffers)."""
         done = slice(0, self.done)
         diagnostics = {name: x[done] for name, x in {**self.per_subject, **self.per_batch}.items()}
-        return Trajectory(self.time[done], *(x[done] for x in self.states.values()), diagnostics=diagnostics,
-                          interrupted=interrupted)
+        s = {name: x[done] for name, x in self.states.items()}
+        return Trajectory(self.time[done], s["base_position"], s["base_rotation"], s["joint_positions"], s["velocity"],
+                          diagnostics, interrupted)

@@ -4,7 +4,7 @@ fixes for a batch size (`BatchSetup`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import torch
 
@@ -45,11 +45,11 @@ class StepStructure:
         selection = model.select(links)  # raises UnknownLinkError for a bad name
         task = TaskStructure.build(model, orientation_links, position_links)
         index = {name: i for i, name in enumerate(links)}
-        long = dict(dtype=torch.long, device=model.device)
+        long: dict[str, Any] = dict(dtype=torch.long, device=model.device)
         gains = []
-        for name, gain, n in (("position_gain", settings.position_gain, len(position_links)),
-                              ("orientation_gain", settings.orientation_gain, len(orientation_links))):
-            gain = torch.as_tensor(gain, dtype=model.dtype, device=model.device)
+        for name, given, n in (("position_gain", settings.position_gain, len(position_links)),
+                               ("orientation_gain", settings.orientation_gain, len(orientation_links))):
+            gain = torch.as_tensor(given, dtype=model.dtype, device=model.device)
             if gain.dim() > 1 or (gain.dim() == 1 and gain.shape[0] != n):
                 raise InputError(f"{name}: give a scalar or one gain per target ({n}), got shape {list(gain.shape)}")
             gains.append(gain.expand(n).clone()[:, None])  # [n,1], against [B,n,3]
@@ -85,7 +85,7 @@ class BatchSetup:
     @classmethod
     def build(cls, model: KinematicModel, structure: StepStructure, settings: TrackerSettings, backend: QPBackend,
               B: int) -> "BatchSetup":
-        kw = dict(dtype=model.dtype, device=model.device)
+        kw: dict[str, Any] = dict(dtype=model.dtype, device=model.device)
         A = None if model.linear_limits is None else model.linear_limits.A
         n_p, n_o = len(structure.position_index), len(structure.orientation_index)
         stacked = B <= cls.STACK_BELOW and model.n_subjects == 1

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import torch
 
-from . import so3
 from ..errors import InputError
+from . import so3
 
 
 @dataclass(frozen=True)
@@ -89,9 +89,9 @@ def clean_targets(targets: Targets, project_tolerance: float = PROJECT_TOLERANCE
     deviation = rotation.transpose(-1, -2) @ rotation - eye
     # one number for the usual case, one synchronisation: the largest deviation from
     # orthonormality, NaN if any target is not finite (NaN and Inf propagate through the sums)
-    worst = deviation.abs().amax() if n_o else rotation.new_zeros(())
+    largest = deviation.abs().amax() if n_o else rotation.new_zeros(())
     # alpha 0 keeps NaN and Inf (0 * Inf is NaN); a finite sum that overflows only takes the slow path
-    worst = float(torch.add(worst, torch.cat((position, linear_velocity, angular_velocity), 1).sum(), alpha=0.0))
+    worst = float(torch.add(largest, torch.cat((position, linear_velocity, angular_velocity), 1).sum(), alpha=0.0))
     all_valid = math.isfinite(worst)
     if all_valid:
         p_ok = torch.ones(B, n_p, dtype=torch.bool, device=position.device)

@@ -21,7 +21,7 @@ J_p^T W J_p from their Jacobians.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import torch
 
@@ -57,7 +57,7 @@ class TaskStructure:
 
     @classmethod
     def build(cls, model: KinematicModel, orientation_links, position_links) -> "TaskStructure":
-        kw = dict(dtype=model.dtype, device=model.device)
+        kw: dict[str, Any] = dict(dtype=model.dtype, device=model.device)
         M_o = model.select(tuple(orientation_links)).ancestor_mask if len(orientation_links) else \
             torch.zeros(0, model.n_dof, **kw)
         on_base = torch.tensor([name == model.base_link for name in position_links], dtype=torch.bool,
@@ -104,7 +104,7 @@ def normal_equations(structure: TaskStructure, joint_axes: torch.Tensor, positio
                        v_orientation.new_ones(v_orientation.shape[:2]) if w_orientation is None else w_orientation), 1)
         v = w[..., None] * v
     g = -(phi * (M.T @ v)).sum(-1)
-    H = None
+    H: torch.Tensor | None = None
     if hessian:
         pairs = (M.T * w[:, None, :]) @ M if weighted else structure.target_pairs  # [B,N,N] or [N,N]
         H = torch.addcmul(structure.damping_matrix(damping), pairs, phi @ phi.transpose(1, 2))
@@ -116,7 +116,7 @@ def normal_equations(structure: TaskStructure, joint_axes: torch.Tensor, positio
         Jp = position_jacobian[:, :, :3].flatten(1, 2)  # [B,3n_j,N]
         if w_position is not None:  # zero rows for dropped targets (weights are 0 or 1)
             Jp = Jp * w_position[:, off_base].repeat_interleave(3, dim=1)[..., None]
-        if hessian:
+        if H is not None:
             H = H + Jp.transpose(1, 2) @ Jp
         weighted_p = v[:, : v_position.shape[1]]
         g = g - (Jp.transpose(1, 2) @ weighted_p[:, off_base].flatten(1).unsqueeze(-1)).squeeze(-1)

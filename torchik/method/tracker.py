@@ -31,7 +31,7 @@ import dataclasses
 import math
 import time
 import warnings
-from typing import NamedTuple, Sequence
+from typing import NamedTuple, Sequence, TypeVar
 
 import torch
 
@@ -49,6 +49,8 @@ from .state import State, StepDiagnostics, TargetSequence, Trajectory, Trajector
 from .structure import BatchSetup, StepStructure
 from .targets import Targets, check_targets, clean_targets
 from .task import Objective, normal_equations
+
+_T = TypeVar("_T")
 
 
 class StepKinematics(NamedTuple):
@@ -135,8 +137,9 @@ class DynamicalIK:
     def state(self) -> State:
         """The current state, its base rotation orthonormalised (what leaves the library). The
         tracker replaces its state every step and never writes into it: these tensors stay valid."""
-        s = self._require_state()
-        return State(s.base_position, self._rotation, s.joint_positions, s.velocity)
+        s, rotation = self._require_state(), self._rotation
+        assert rotation is not None  # set with the state
+        return State(s.base_position, rotation, s.joint_positions, s.velocity)
 
     def _require_state(self) -> State:
         if self._state is None:
@@ -154,6 +157,7 @@ class DynamicalIK:
         """
         start = time.perf_counter()
         q, batch, structure, model = self._require_state(), self._batch, self.structure, self.model
+        assert batch is not None and self._rotation is not None  # set with the state by reset()
         self._check_targets(targets, batch)
         dt = self._time_step(dt, batch.size)
         new_segment = self._no_restart
@@ -220,7 +224,8 @@ class DynamicalIK:
         to ROTATION_TOLERANCE, or whose joints went further beyond a limit than LIMIT_TOLERANCE (a state
         given outside its limits is pulled in, not failed). The shared all-False tensor when none is:
         then one number leaves the device, NaN and Inf propagating through its sums."""
-        state, R, model = self._state, self._rotation, self.model
+        state, R, model = self._require_state(), self._rotation, self.model
+        assert R is not None  # set with the state
         deviation = (R.transpose(-1, -2) @ R - so3.identity(R.dtype, R.device)).abs().flatten(1).amax(-1)  # [B]
         outward = _beyond_limits(state.joint_positions, model.lower, model.upper) - \
             _beyond_limits(before.joint_positions, model.lower, model.upper)  # [B,n]
@@ -257,43 +262,52 @@ class DynamicalIK:
         same in the paper's scheme). Small batches cost per operation, not per row: both
         configurations then go in one call."""
         model, structure, B, R_B = self.model, self.structure, batch.size, self._rotation
+        assert R_B is not None
         paper, stacked = self.settings.scheme == "paper", self.settings.scheme == "midpoint" and batch.stacked
         if structure.rotations_only:  # orientation targets and the base's position: no positions, no Jacobians
             p_hat, links = q.base_position.unsqueeze(1), structure.orientation_selection
+            assert links is not None  # rotations_only: there are orientation targets
             if paper:
                 now = model.rotations(R_B, q.joint_positions, links, joint_axes=True)
-                return StepKinematics(now.rotation, p_hat, now.joint_axes, None)
+                return StepKinematics(now.rotation, p_hat, _given(now.joint_axes), None)
             if stacked:
-                both = model.rotations(torch.cat((R_B, at.base_rotation)), torch.cat((q.joint_positions, at.joint_positions)),
-                                       links, joint_axes=True)
-                return StepKinematics(both.rotation[:B], p_hat, both.joint_axes[B:], None)
-            return StepKinematics(model.rotations(R_B, q.joint_positions, links).rotation, p_hat,
-                                  model.rotations(at.base_rotation, at.joint_positions, links, joint_axes=True).joint_axes,
-                                  None)
+                both = model.rotations(torch.cat((R_B, at.base_rotation)),
+                                       torch.cat((q.joint_positions, at.joint_positions)), links, joint_axes=True)
+                return StepKinematics(both.rotation[:B], p_hat, _given(both.joint_axes)[B:], None)
+            mid_axes = model.rotations(at.base_rotation, at.joint_positions, links, joint_axes=True).joint_axes
+            return StepKinematics(model.rotations(R_B, q.joint_positions, links).rotation, p_hat, _given(mid_axes), None)
         # position targets off the base need link positions and their Jacobians
-        task = dict(jacobian=structure.task.position is not None, jacobian_links=structure.task.position, joint_axes=True)
+        jacobian, jacobian_links = structure.task.position is not None, structure.task.position
+        base_position = _given(at.base_position)  # the step asked for positions
         if paper:
-            now = mid = model(q.base_position, R_B, q.joint_positions, structure.selection, out=batch.buffers, **task)
+            now = model(q.base_position, R_B, q.joint_positions, structure.selection, out=batch.buffers,
+                        jacobian=jacobian, jacobian_links=jacobian_links, joint_axes=True)
+            axes, position_jacobian = now.joint_axes, now.jacobian
         elif stacked:
-            both = model(torch.cat((q.base_position, at.base_position)), torch.cat((R_B, at.base_rotation)),
-                         torch.cat((q.joint_positions, at.joint_positions)), structure.selection, out=batch.buffers, **task)
-            now = LinkKinematics(both.rotation[:B], both.position[:B], None)
-            mid = LinkKinematics(None, None, None if both.jacobian is None else both.jacobian[B:], both.joint_axes[B:])
+            both = model(torch.cat((q.base_position, base_position)), torch.cat((R_B, at.base_rotation)),
+                         torch.cat((q.joint_positions, at.joint_positions)), structure.selection, out=batch.buffers,
+                         jacobian=jacobian, jacobian_links=jacobian_links, joint_axes=True)
+            now = LinkKinematics(both.rotation[:B], _given(both.position)[:B], None)
+            axes = _given(both.joint_axes)[B:]
+            position_jacobian = None if both.jacobian is None else both.jacobian[B:]
         else:
             now = model(q.base_position, R_B, q.joint_positions, structure.selection, jacobian=False)
-            mid = model(at.base_position, at.base_rotation, at.joint_positions, structure.selection, out=batch.buffers,
-                        **task)
+            mid = model(base_position, at.base_rotation, at.joint_positions, structure.selection, out=batch.buffers,
+                        jacobian=jacobian, jacobian_links=jacobian_links, joint_axes=True)
+            axes, position_jacobian = mid.joint_axes, mid.jacobian
         return StepKinematics(now.rotation.index_select(1, structure.orientation_index),
-                              now.position.index_select(1, structure.position_index), mid.joint_axes, mid.jacobian)
+                              _given(now.position).index_select(1, structure.position_index), _given(axes),
+                              position_jacobian)
 
-    def _objective(self, kin: StepKinematics, v_p: torch.Tensor, v_o: torch.Tensor, weights,
+    def _objective(self, kin: StepKinematics, v_p: torch.Tensor, v_o: torch.Tensor,
+                   weights: tuple[torch.Tensor | None, torch.Tensor | None],
                    batch: BatchSetup) -> tuple[Objective, TreeHessian | None]:
         """The normal equations of ||v* - J nu||^2 + lambda ||nu||^2, with the Hessian in the tree's
         structured form (and H None) when the batched backend solves on it."""
         damping, structure = self.settings.damping, self.structure
         objective = normal_equations(structure.task, kin.joint_axes, kin.position_jacobian, v_p, v_o, damping,
-                                     *weights, hessian=not batch.structured)
-        tree = TreeHessian.from_targets(structure.tree, kin.joint_axes, damping, len(self.position_links),
+                                     weights[0], weights[1], hessian=not batch.structured)
+        tree = TreeHessian.from_targets(_given(structure.tree), kin.joint_axes, damping, len(self.position_links),
                                         weights[1], weights[0]) if batch.structured else None
         return objective, tree
 
@@ -302,6 +316,7 @@ class DynamicalIK:
         if batch.linear_rows is None:
             return None
         limits = self.model.linear_limits
+        assert limits is not None  # the rows exist
         return LinearRows(batch.linear_rows, linear_limit_bounds(s, limits.A, limits.b, self.settings.limits, dt))
 
     def _check_targets(self, targets: Targets, batch: BatchSetup) -> None:
@@ -357,28 +372,30 @@ class DynamicalIK:
         first = sequence[0]
         self.reset(initial if initial is not None else self.initial_state(first), batch=first.batch)
         time_steps = self._time_steps(sequence.time, first.batch)
-        steps = range(T)
         if progress is None:
             progress = T * first.batch > 20000
+        bar = None
         if progress:
             from tqdm import tqdm
 
-            steps = tqdm(steps, desc="tracking", unit="step", leave=False, delay=1.0)
+            bar = tqdm(total=T, desc="tracking", unit="step", leave=False, delay=1.0)
         buffer: TrajectoryBuffer | None = None
         interrupted = False
         try:
-            for k in steps:
+            for k in range(T):
                 state, diagnostic = self.step(sequence[k], time_steps(k))
                 if buffer is None:
                     buffer = Trajectory.preallocated(sequence.time, state, diagnostic)
                 buffer.put(state, diagnostic)
+                if bar is not None:
+                    bar.update()
         except KeyboardInterrupt:
             if not interruptible or buffer is None:
                 raise
             interrupted = True
         finally:
-            if progress:
-                steps.close()
+            if bar is not None:
+                bar.close()
         assert buffer is not None  # T > 0 steps were taken, or the interrupt rose
         return buffer.trajectory(interrupted)
 
@@ -422,3 +439,10 @@ def _mean_over(values: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
     """The mean of values [B,n] over the valid [B,n] ones (0 where none is)."""
     weight = valid.to(values.dtype)
     return (values * weight).sum(-1) / weight.sum(-1).clamp(min=1.0)
+
+
+def _given(value: _T | None) -> _T:
+    """value, which the call that made it was asked for (an optional output), or which the batch's
+    setup guarantees (a structured batch's joint tree)."""
+    assert value is not None
+    return value

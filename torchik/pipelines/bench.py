@@ -33,6 +33,7 @@ import torch
 
 from ..errors import optional
 from ..method.models import MODELS
+from ..method.qp import BatchedBackend
 from ..method.settings import TrackerSettings
 
 BATCHES = (1, 64, 1024, 8192)
@@ -77,6 +78,8 @@ def bench_batched(name: str, batch: int, device: str, dtype, min_seconds: float,
                           backend="batched")
     state = motion.state(0)
     tracker.reset(type(state)(*(x.to(device) for x in vars(state).values())), batch=batch)
+    solver = tracker.backend
+    assert isinstance(solver, BatchedBackend)  # asked for: its iterations are measured
     for k in range(warmup):
         tracker.step(sequence[k])
     _synchronize(device)
@@ -85,8 +88,8 @@ def bench_batched(name: str, batch: int, device: str, dtype, min_seconds: float,
     while steps < max_steps:
         _, diagnostics = tracker.step(sequence[warmup + steps])
         steps += 1
-        iterations += tracker.backend.iterations
-        rescued += tracker.backend.rescued
+        iterations += solver.iterations
+        rescued += solver.rescued
         active += float(diagnostics.active_constraints.double().mean())
         unsolved += int((~diagnostics.solved).sum())
         if time.perf_counter() - start > min_seconds:
@@ -114,8 +117,8 @@ def _synchronize(device: str) -> None:
 def bench_torchik_loop(name: str, steps: int, warmup: int = 10) -> Measurement:
     """torchik's tracker for one subject with the PIQP backend, step after step."""
     from ..method.models import TRACKED_LINKS, load_model
-    from ..synthetic.motion import targets_from_motion
     from ..method.tracker import DynamicalIK
+    from ..synthetic.motion import targets_from_motion
 
     model, links = load_model(name), TRACKED_LINKS[name]
     motion = _motion(model, 1, warmup + steps)
@@ -264,27 +267,31 @@ def run(models=MODELS, batches=BATCHES, device: str = "cpu", dtype=torch.float64
         optional("pinocchio", "bench", "torchik bench's per-subject loops (or --no-loops)")
         plan += [(name, loop, 1) for name in models for loop in LOOPS
                  if loop == "torchik+piqp" or loop.split("+")[1] in qpsolvers.available_solvers]
+    bar = None
     if progress:
         from tqdm import tqdm
 
-        plan = tqdm(plan, desc="bench", unit="run", leave=False)
+        bar = tqdm(total=len(plan), desc="bench", unit="run", leave=False)
     results = []
     for name, pipeline, B in plan:
-        if progress:
-            plan.set_postfix_str(f"{name} {pipeline} B={B}")
+        if bar is not None:
+            bar.set_postfix_str(f"{name} {pipeline} B={B}")
+            bar.update()
         if pipeline == "batched":
             results.append(bench_batched(name, B, device, dtype, min_seconds, max_steps))
         elif pipeline == "torchik+piqp":
             results.append(bench_torchik_loop(name, loop_steps))
         else:
             results.append(bench_pinocchio_loop(name, pipeline.split("+")[1], loop_steps))
+    if bar is not None:
+        bar.close()
     return results
 
 
 def table(results: list[Measurement]) -> str:
     lines = [f"{'model':8s} {'pipeline':16s} {'B':>6s} {'subject-steps/s':>16s} {'vs best loop':>12s} "
              f"{'ms/step':>8s} {'active/subj':>11s} {'iters':>6s} {'rescued':>8s} {'final MNTE':>10s}"]
-    best = {}
+    best: dict[str, float] = {}
     for r in results:
         if r.pipeline != "torchik batched":
             best[r.model] = max(best.get(r.model, 0.0), r.subject_steps_per_second)

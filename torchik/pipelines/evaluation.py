@@ -87,6 +87,22 @@ def tracking_errors(model: KinematicModel, trajectory: Trajectory, sequence: Tar
     return out
 
 
+def position_errors(model: KinematicModel, trajectory: Trajectory, sequence: TargetSequence, links,
+                    chunk: int = 4096) -> torch.Tensor:
+    """[T,B,P] distance (m) from each position target of `links` (the sequence's position links, in its
+    order) to the estimated link origin at the same sample; NaN where the target is missing."""
+    T = len(trajectory.time)
+    chunks = []
+    for start in range(0, T, chunk):  # a few thousand samples at a time: the memory of the batch
+        p, R, s = (x[start:start + chunk] for x in (trajectory.base_position, trajectory.base_rotation,
+                                                    trajectory.joint_positions))
+        n, B = p.shape[:2]
+        kin = model(p.flatten(0, 1), R.flatten(0, 1), s.flatten(0, 1), tuple(links), jacobian=False)
+        chunks.append(kin.position.unflatten(0, (n, B)))  # type: ignore[union-attr]  # positions asked for
+    estimate = torch.cat(chunks)
+    return (sequence.position[:T] - estimate).norm(dim=-1)
+
+
 def after_transient(values: torch.Tensor, time: torch.Tensor, transient: float = 2.0) -> torch.Tensor:
     """values [T,...] at t >= time[0] + transient (all of them when the sequence is shorter)."""
     keep = time >= time[0] + transient

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -132,7 +133,7 @@ def retarget(recording: Recording, rate: float = 100.0, gain: float = TrackerSet
 def save(result: Retargeted, path: str | Path, meta: dict | None = None) -> Path:
     """Write `result` as .npz (see the module docstring), replacing `path` only once complete."""
     path = Path(path)
-    arrays = dict(time=result.time, joint_names=np.array(result.joint_names, dtype=str),
+    arrays: dict[str, Any] = dict(time=result.time, joint_names=np.array(result.joint_names, dtype=str),
                   joint_positions=result.joint_positions, joint_velocities=result.joint_velocities,
                   base_position=result.base_position, base_rotation=result.base_rotation, mnte=result.mnte,
                   rate_hz=np.array(1.0 / np.median(np.diff(result.time))),

@@ -32,22 +32,24 @@ import uuid
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 import torch
 
-from ..errors import optional
-
-rr = optional("rerun", "viz", "writing rerun recordings")
-rrb = optional("rerun.blueprint", "viz", "writing rerun recordings")
-
-from ..errors import InputError
+from ..errors import InputError, optional
 from ..io.files import replacing
 from ..method.kinematics import KinematicModel
 from ..method.state import TargetSequence, Trajectory
 from .evaluation import time_chunks
 from .visuals import Visual, log_visuals, quaternion_xyzw, visuals  # noqa: F401  (visuals: part of this module's API)
+
+if TYPE_CHECKING:
+    import rerun as rr
+    import rerun.blueprint as rrb
+else:
+    rr = optional("rerun", "viz", "writing rerun recordings")
+    rrb = optional("rerun.blueprint", "viz", "writing rerun recordings")
 
 GROUPS = {"mnte": "errors", "rmse": "errors", "active_constraints": "solver", "solved": "solver",
           "dropped": "solver", "projected": "solver"}  # per-subject diagnostics [T,B]; others: "diagnostics"
@@ -260,9 +262,10 @@ def _split_diagnostics(diagnostics: dict[str, torch.Tensor], T: int, B: int, n_t
     if "residual_norm" not in diagnostics or tuple(diagnostics["residual_norm"].shape) != (T, B, n_targets):
         raise InputError(f"trajectory.diagnostics['residual_norm']: expected shape [{T},{B},{n_targets}] "
                          f"(position then orientation targets)")
-    per_subject, per_batch = {}, {}
-    for name, value in diagnostics.items():
-        value = value.detach().to("cpu", torch.float64).numpy()
+    per_subject: dict[str, np.ndarray] = {}
+    per_batch: dict[str, np.ndarray] = {}
+    for name, series in diagnostics.items():
+        value = series.detach().to("cpu", torch.float64).numpy()
         if name in BATCH_SERIES:
             if value.shape != (T,):
                 raise InputError(f"trajectory.diagnostics[{name!r}]: expected shape [{T}], got {list(value.shape)}")
@@ -287,14 +290,14 @@ def _log_targets(rec: rr.RecordingStream, root: str, time: torch.Tensor, targets
         if link in links:
             where[:, links.index(link)] = targets.position[:T, i, j].detach().to("cpu", torch.float64)
     known = (torch.isfinite(rotation).flatten(-2).all(-1) & torch.isfinite(where).all(-1)).numpy()  # [T,L]
-    quaternion, where = quaternion_xyzw(torch.nan_to_num(rotation)).numpy(), where.numpy()
+    quaternion, at = quaternion_xyzw(torch.nan_to_num(rotation)).numpy(), where.numpy()
     seconds = time.detach().to("cpu", torch.float64).numpy()
     for k, link in enumerate(links):
         name = f"{root}/{rr.escape_entity_path_part(link)}"
         keep = known[:, k]
         rec.log(name, rr.TransformAxes3D(axis_length), static=True)
         rec.send_columns(name, [rr.TimeColumn("time", duration=seconds[keep])], rr.Transform3D.columns(
-            translation=where[keep, k], quaternion=quaternion[keep, k]))
+            translation=at[keep, k], quaternion=quaternion[keep, k]))
 
 
 def _send_scalars(rec: rr.RecordingStream, path: str, time: rr.TimeColumn, values: np.ndarray,

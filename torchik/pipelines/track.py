@@ -15,11 +15,11 @@ from ..method.kinematics import KinematicModel
 from ..method.settings import TrackerSettings
 from ..method.state import Trajectory
 from ..method.tracker import DynamicalIK
-from .evaluation import summary, tracking_errors, tracking_statistics
+from .evaluation import position_errors, summary, tracking_errors, tracking_statistics
 
 
 def track_recording(model: KinematicModel, recording: Recording, links, settings: TrackerSettings | None = None,
-                    progress: bool = False, transient: float = 2.0,
+                    progress: bool = False, transient: float = 2.0, position_links=None,
                     plausibility: Plausibility | None = None) -> tuple[Trajectory, dict]:
     """Track `recording` (link names already the model's) with `settings` (default TrackerSettings(),
     dt the recording's median frame interval) and return the trajectory and a report (metrics
@@ -28,14 +28,17 @@ def track_recording(model: KinematicModel, recording: Recording, links, settings
 
     The trajectory's diagnostics mnte and rmse [T,1] are the paper's metrics (`tracking_errors`:
     the estimate at t_k against the targets at t_k). Ctrl-C stops the tracking early: the
-    trajectory and report then cover the frames done and report["interrupted"] is True."""
+    trajectory and report then cover the frames done and report["interrupted"] is True.
+    position_links: the links with position targets (default the base; others need the recording's
+    `position`); with any, the report's position_error_m gives their distance to the estimate."""
     links = tuple(links)
     recording, implausible = drop_implausible(recording, plausibility or Plausibility())
-    sequence = recording_targets(recording, links, dtype=model.dtype, device=model.device)
+    sequence = recording_targets(recording, links, position_links, dtype=model.dtype, device=model.device)
     settings = settings or TrackerSettings()
     dt = nominal_dt(recording, settings)
     settings = dataclasses.replace(settings, dt=dt)
-    trajectory = DynamicalIK(model, links, settings=settings).run(sequence, progress=progress, interruptible=True)
+    trajectory = DynamicalIK(model, links, position_links, settings=settings).run(sequence, progress=progress,
+                                                                                  interruptible=True)
     done = len(trajectory.time)
     trajectory.diagnostics.update(tracking_errors(model, trajectory, sequence, links, settings.scheme))
     time = trajectory.time
@@ -53,6 +56,10 @@ def track_recording(model: KinematicModel, recording: Recording, links, settings
         segments=segments(time, d["new_segment"][:, 0]),
         active_constraints_mean=float(d["active_constraints"].double().mean()), interrupted=trajectory.interrupted,
     )
+    if position_links is not None:
+        error = position_errors(model, trajectory, sequence, position_links)[:, 0]  # [T,P]
+        report["position_error_m"] = {link: summary(e[torch.isfinite(e)], time[torch.isfinite(e)], transient)
+                                      for link, e in zip(position_links, error.unbind(-1)) if bool(torch.isfinite(e).any())}
     return trajectory, report
 
 

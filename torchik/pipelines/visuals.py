@@ -6,7 +6,7 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import torch
 
@@ -14,7 +14,10 @@ from ..errors import InputError, optional
 from ..method import so3
 from ..method.kinematics import read_urdf
 
-rr = optional("rerun", "viz", "writing rerun recordings")
+if TYPE_CHECKING:
+    import rerun as rr
+else:
+    rr = optional("rerun", "viz", "writing rerun recordings")
 
 
 @dataclass(frozen=True)
@@ -25,8 +28,8 @@ class Visual:
 
     kind: str
     size: tuple[float, ...]
-    translation: tuple[float, float, float]
-    quaternion: tuple[float, float, float, float]
+    translation: tuple[float, ...]  # [3]
+    quaternion: tuple[float, ...]  # [4] x, y, z, w
     mesh: Path | None = None
     rgba: tuple[float, float, float, float] | None = None
 
@@ -77,8 +80,10 @@ def log_visuals(rec: rr.RecordingStream, path: str, shapes: Sequence[Visual], co
     by_kind: dict[str, list[Visual]] = {}
     for v in shapes:
         by_kind.setdefault(v.kind, []).append(v)
-    common = lambda vs: dict(centers=[v.translation for v in vs], quaternions=[v.quaternion for v in vs],  # noqa: E731
-                             colors=[rgba(v) for v in vs])
+    def common(vs: list[Visual]) -> dict[str, Any]:
+        return dict(centers=[v.translation for v in vs], quaternions=[v.quaternion for v in vs],
+                    colors=[rgba(v) for v in vs])
+
     if "box" in by_kind:
         vs = by_kind["box"]
         rec.log(path, rr.Boxes3D(half_sizes=[[s / 2 for s in v.size] for v in vs], **common(vs)), static=True)
@@ -90,7 +95,8 @@ def log_visuals(rec: rr.RecordingStream, path: str, shapes: Sequence[Visual], co
         vs = by_kind["sphere"]
         rec.log(path, rr.Ellipsoids3D(half_sizes=[[v.size[0]] * 3 for v in vs], **common(vs)), static=True)
     for k, v in enumerate(by_kind.get("mesh", ())):
-        rec.log(f"{path}/mesh{k}", rr.Transform3D(translation=v.translation, quaternion=v.quaternion, scale=v.size),
+        rec.log(f"{path}/mesh{k}", rr.Transform3D(translation=v.translation, quaternion=rr.Quaternion(xyzw=v.quaternion),
+                                                  scale=v.size),
                 rr.Asset3D(path=v.mesh, albedo_factor=rgba(v)), static=True)
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 
@@ -55,7 +56,7 @@ def periodic_motion(model: KinematicModel, duration: float, rate: float, batch: 
     `forward_speed` m/s while swaying, bobbing, yawing, pitching and rolling. Velocities are exact.
     Joints with finite limits stay inside them."""
     g = torch.Generator().manual_seed(seed)
-    kw = dict(dtype=dtype)
+    kw: dict[str, Any] = dict(dtype=dtype)
     t = torch.arange(int(round(duration * rate)) + 1, **kw) / rate  # [T]
     n = model.n_dof
     w = 2 * math.pi * frequency
@@ -75,7 +76,8 @@ def periodic_motion(model: KinematicModel, duration: float, rate: float, batch: 
     p_dot = torch.stack((torch.full_like(tt, forward_speed), 0.05 * w * torch.cos(w * tt),
                          0.04 * w * torch.cos(2 * w * tt)), -1)
     yaw, pitch, roll = 0.3 * torch.sin(w * tt), 0.1 * torch.sin(2 * w * tt + 0.5), 0.08 * torch.sin(w * tt + 1.0)
-    d_yaw, d_pitch, d_roll = 0.3 * w * torch.cos(w * tt), 0.2 * w * torch.cos(2 * w * tt + 0.5), 0.08 * w * torch.cos(w * tt + 1.0)
+    d_yaw, d_pitch = 0.3 * w * torch.cos(w * tt), 0.2 * w * torch.cos(2 * w * tt + 0.5)
+    d_roll = 0.08 * w * torch.cos(w * tt + 1.0)
     R, Rz, Ry = _rz_ry_rx(yaw, pitch, roll)
     ez = torch.tensor([0.0, 0.0, 1.0], **kw)
     omega = (d_yaw[..., None] * ez + d_pitch[..., None] * Rz[..., :, 1] + d_roll[..., None] * (Rz @ Ry)[..., :, 0])
@@ -100,6 +102,7 @@ def targets_from_motion(model: KinematicModel, motion: Motion, orientation_links
     kin_p = model(flat(motion.base_position), flat(motion.base_rotation), flat(motion.joint_positions), position_links)
     kin_o = model(flat(motion.base_position), flat(motion.base_rotation), flat(motion.joint_positions), orientation_links)
     nu = flat(motion.velocity)[:, None, :, None]
+    assert kin_p.jacobian is not None and kin_o.jacobian is not None  # asked for (the default)
     v = (kin_p.jacobian[:, :, :3] @ nu).squeeze(-1)
     omega = (kin_o.jacobian[:, :, 3:] @ nu).squeeze(-1)
     unflat = lambda x: x.reshape((T, B) + x.shape[1:])  # noqa: E731

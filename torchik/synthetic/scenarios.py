@@ -13,13 +13,14 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
 
-from ..method import so3
 from ..errors import InputError
 from ..io.recording import Recording
+from ..method import so3
 from ..method.kinematics import KinematicModel
 from .motion import Motion, _rz_ry_rx, targets_from_motion
 
@@ -108,7 +109,7 @@ def scenario_motion(name: str, model: KinematicModel, duration: float = 10.0, ra
     gait = SCENARIOS[name]
     rng = np.random.default_rng(seed)
     centre, a1, a2, phase = (torch.from_numpy(x) for x in _joint_patterns(model, gait, rng))
-    kw = dict(dtype=torch.float64)
+    kw: dict[str, Any] = dict(dtype=torch.float64)
     t = torch.arange(int(round(duration * rate)) + 1, **kw) / rate
     w = 2 * math.pi * gait.frequency
     arg = w * t[:, None] + phase  # [T,n]
@@ -120,11 +121,14 @@ def scenario_motion(name: str, model: KinematicModel, duration: float = 10.0, ra
             break
         a1, a2 = 0.8 * a1, 0.8 * a2
     s_dot = a1 * w * torch.cos(arg) + 2 * a2 * w * torch.cos(2 * arg)
-    height = float(-model(*model.zero_configuration(1), model.link_names, jacobian=False).position[0, :, 2].min())
+    rest = model(*model.zero_configuration(1), model.link_names, jacobian=False).position
+    assert rest is not None  # forward gives positions
+    height = float(-rest[0, :, 2].min())
     p = torch.stack((gait.speed * t, gait.sway * torch.sin(w * t), height + gait.bob * torch.sin(2 * w * t)), -1)
     p_dot = torch.stack((torch.full_like(t, gait.speed), gait.sway * w * torch.cos(w * t),
                          2 * gait.bob * w * torch.cos(2 * w * t)), -1)
-    yaw, pitch, roll = gait.yaw * torch.sin(w * t), 0.5 * gait.yaw * torch.sin(2 * w * t), 0.5 * gait.yaw * torch.sin(w * t + 1)
+    yaw, pitch = gait.yaw * torch.sin(w * t), 0.5 * gait.yaw * torch.sin(2 * w * t)
+    roll = 0.5 * gait.yaw * torch.sin(w * t + 1)
     d_yaw = gait.yaw * w * torch.cos(w * t)
     d_pitch = gait.yaw * w * torch.cos(2 * w * t)
     d_roll = 0.5 * gait.yaw * w * torch.cos(w * t + 1)

@@ -117,6 +117,7 @@ def link_poses(R, p, sel: LinkSelection, out: LinkKinematics | None) -> torch.Te
         R_link = matmul_soa(R_link, sel.offset_rotation.expand_as(R_link))
     if out is not None:
         out.rotation.copy_(R_link.permute(3, 0, 1, 2))
+        assert out.position is not None  # forward's buffers hold positions
         out.position.copy_(p_link.permute(2, 0, 1))
     return p_link
 

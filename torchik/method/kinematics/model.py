@@ -9,7 +9,7 @@ from __future__ import annotations
 import copy
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import torch
 
@@ -205,17 +205,18 @@ class KinematicModel:
         jsel = sel if jacobian_links is None else self._selection(jacobian_links)
         if out is None:
             out = self.empty_output(B, sel, jacobian, jsel)
-        elif out.position.shape != (B, len(sel.names), 3) or (
+        elif out.position is None or out.position.shape != (B, len(sel.names), 3) or (
                 jacobian and (out.jacobian is None or out.jacobian.shape[1] != len(jsel.names))):
             raise InputError(f"out: expected buffers from empty_output({B}, links, ...) for {len(sel.names)} links")
 
         t = self._tensors
         R, p = frame_poses(t, base_position, base_rotation, joint_positions)  # [F,3,3,B], [F,3,B]
         p_link = link_poses(R, p, sel, out)
-        axis = None
-        if jacobian or joint_axes:
-            axis = world_axes(t, R)
+        if not (jacobian or joint_axes):
+            return out
+        axis = world_axes(t, R)
         if jacobian:
+            assert out.jacobian is not None  # empty_output made it, or the check above found it
             p_jacobian = p_link if jsel is sel else link_poses(R, p, jsel, None)
             fill_jacobian(t, base_position, axis, p, p_jacobian, jsel, out.jacobian)
         if joint_axes:
@@ -263,7 +264,7 @@ class KinematicModel:
         """Buffers for `forward(..., out=...)`: rotation [B,L,3,3], position [B,L,3], jacobian [B,L_j,6,6+n]."""
         sel = self._selection(links)
         jsel = sel if jacobian_links is None else self._selection(jacobian_links)
-        kw = dict(dtype=self.dtype, device=self.device)
+        kw: dict[str, Any] = dict(dtype=self.dtype, device=self.device)
         J = None
         if jacobian:
             J = torch.zeros(batch, len(jsel.names), 6, 6 + self.n_dof, **kw)
@@ -275,7 +276,7 @@ class KinematicModel:
 
     def zero_configuration(self, batch: int = 1) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The zero configuration: base at the origin, identity rotation, s = 0. Shapes [B,3], [B,3,3], [B,n]."""
-        kw = dict(dtype=self.dtype, device=self.device)
+        kw: dict[str, Any] = dict(dtype=self.dtype, device=self.device)
         return (torch.zeros(batch, 3, **kw), torch.eye(3, **kw).expand(batch, 3, 3).clone(),
                 torch.zeros(batch, self.n_dof, **kw))
 

@@ -7,7 +7,7 @@ a model derives them again to change dtype or device, or to stack subjects.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import torch
@@ -103,7 +103,7 @@ def tensors(tree: KinematicTree, geometry: Geometry, dtype, device) -> TreeTenso
     """Derive the tensors of `tree` with dimensions `geometry`, in `dtype` on `device`."""
     device = torch.device(device)
     g = geometry.to(dtype=dtype, device=device)
-    long = dict(dtype=torch.long, device=device)
+    long: dict[str, Any] = dict(dtype=torch.long, device=device)
     template = torch.zeros(tree.n_frames + 1, 4, 4, dtype=dtype, device=device)
     template[:, 3, 3] = 1.0
     template[-1] = torch.eye(4, dtype=dtype, device=device)

@@ -8,7 +8,8 @@ step's tree structure (`TreeHessian`) when the problem carries it.
 """
 
 from .base import QPBackend, QPProblem, QPSolution, clipped_fallback, unconstrained_if_feasible
-from .batched import BatchedBackend, DenseHessian
+from .batched import BatchedBackend
+from .dense import DenseHessian
 from .piqp_backend import PiqpBackend
 from .tree import JointTree, TreeHessian
 

@@ -30,13 +30,25 @@ class QPProblem:
     @property
     def dense_hessian(self) -> torch.Tensor:
         """H as a dense [B,N,N] matrix (formed from `tree` when H is None)."""
-        return self.H if self.H is not None else self.tree.dense()
+        if self.H is not None:
+            return self.H
+        assert self.tree is not None, "a QPProblem needs H or tree"
+        return self.tree.dense()
+
+    @property
+    def rows(self) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """(G [B,m,N], h [B,m]) of the linear rows G x <= h, or None without any."""
+        if self.G is None:
+            return None
+        assert self.h is not None, "a QPProblem's G comes with its h"
+        return self.G, self.h
 
     def active(self, x: torch.Tensor, tolerance: float = 1e-9) -> torch.Tensor:
         """[B] bounds (lower or upper) and linear rows that x [B,N] touches (infinite bounds never)."""
         count = ((x <= self.lb + tolerance) | (x >= self.ub - tolerance)).sum(-1)
-        if self.G is not None:
-            count = count + ((self.G @ x.unsqueeze(-1)).squeeze(-1) >= self.h - tolerance).sum(-1)
+        if (rows := self.rows) is not None:
+            G, h = rows
+            count = count + ((G @ x.unsqueeze(-1)).squeeze(-1) >= h - tolerance).sum(-1)
         return count
 
 
@@ -76,8 +88,9 @@ def unconstrained_if_feasible(problem: QPProblem) -> tuple[torch.Tensor, torch.T
     x = torch.cholesky_solve(-problem.g.unsqueeze(-1), L).squeeze(-1)
     # within every bound (NaN fails the comparison) and finite
     feasible = (info == 0) & ((x.clamp(problem.lb, problem.ub) == x) & torch.isfinite(x)).all(-1)
-    if problem.G is not None:
-        feasible &= ((problem.G @ x.unsqueeze(-1)).squeeze(-1) <= problem.h).all(-1)
+    if (rows := problem.rows) is not None:
+        G, h = rows
+        feasible &= ((G @ x.unsqueeze(-1)).squeeze(-1) <= h).all(-1)
     return x, feasible
 
 
@@ -91,12 +104,14 @@ def clipped_fallback(problem: QPProblem) -> torch.Tensor:
         free = torch.ones_like(problem.g, dtype=torch.bool)
         x = problem.tree.factor(free).solve(-problem.g.unsqueeze(-1)).squeeze(-1)
     else:
-        x = torch.linalg.solve(problem.H, -problem.g.unsqueeze(-1)).squeeze(-1)
+        x = torch.linalg.solve(problem.dense_hessian, -problem.g.unsqueeze(-1)).squeeze(-1)
     x = torch.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0)
     x = torch.minimum(torch.maximum(x, problem.lb), problem.ub)
-    if problem.G is not None:
-        Gx = (problem.G @ x.unsqueeze(-1)).squeeze(-1)
+    if (rows := problem.rows) is not None:
+        G, h = rows
+        Gx = (G @ x.unsqueeze(-1)).squeeze(-1)
         # largest alpha in [0, 1] with alpha G x <= h on every row where G x > h
-        ratio = torch.where(Gx > problem.h, problem.h.clamp(min=0) / Gx.clamp(min=torch.finfo(Gx.dtype).tiny), torch.ones_like(Gx))
+        tiny = torch.finfo(Gx.dtype).tiny
+        ratio = torch.where(Gx > h, h.clamp(min=0) / Gx.clamp(min=tiny), torch.ones_like(Gx))
         x = x * ratio.min(dim=-1, keepdim=True).values.clamp(0.0, 1.0)
     return x

@@ -34,41 +34,13 @@ dozen shared quantities would travel through every call.
 
 from __future__ import annotations
 
+import functools
+
 import torch
 
 from .base import QPBackend, QPProblem, QPSolution, clipped_fallback
+from .dense import DenseHessian
 from .tree import TreeHessian
-
-
-class DenseHessian:
-    """H as a dense batch [B,N,N], with the two operations the active-set method needs."""
-
-    def __init__(self, H: torch.Tensor):
-        self.H = H
-
-    def matvec(self, x: torch.Tensor) -> torch.Tensor:
-        """x: [B,N,k] -> H x [B,N,k]."""
-        return self.H @ x
-
-    def factor(self, free: torch.Tensor, extra: torch.Tensor | None = None) -> "DenseFactor":
-        """H + diag(extra) restricted to the `free` variables [B,N] (bool), Cholesky-factorised."""
-        return DenseFactor(self.H if extra is None else self.H + torch.diag_embed(extra), free)
-
-
-class DenseFactor:
-    def __init__(self, H: torch.Tensor, free: torch.Tensor):
-        self.H, self.free = H, free.to(H.dtype)
-        f = self.free
-        reduced = H * (f[:, :, None] * f[:, None, :]) + torch.diag_embed(1 - f)
-        self.L, self.info = torch.linalg.cholesky_ex(reduced)
-
-    def solve(self, rhs: torch.Tensor, held: torch.Tensor | None = None) -> torch.Tensor:
-        """x with (H x)_i = rhs_i on the free variables, x_i = held_i on the others. [B,N,k] -> [B,N,k]."""
-        f = self.free[..., None]
-        c = torch.zeros_like(rhs) if held is None else (1 - f) * held
-        b = f * (rhs - self.H @ c) + c
-        z = torch.linalg.solve_triangular(self.L, b, upper=False)
-        return torch.linalg.solve_triangular(self.L.transpose(-1, -2), z, upper=True)
 
 
 class BatchedBackend(QPBackend):
@@ -142,8 +114,8 @@ class BatchedBackend(QPBackend):
         eta = None if G is None else g.new_zeros(G.shape[:2])
         live, sub_H, sub = None, H, problem
         iteration = 0
-        for iteration in range(1, budget + 1):
-            pick = (lambda t: t) if live is None else (lambda t: None if t is None else t.index_select(0, live))
+        for iteration in range(1, budget + 1):  # noqa: B007  (the count is returned)
+            pick = functools.partial(_select, live)
             u, l, r = pick(upper), pick(lower), pick(rows)
             x_new, eta_new, nu_new, r, degenerate = self._solve_on(sub_H, sub.g, sub.lb, sub.ub, sub.G, sub.h, u, l, r)
             new_u, new_l, new_r, same = _next_active_set(sub, x_new, nu_new, eta_new, u, l, r, tolerance)
@@ -245,19 +217,24 @@ def _next_active_set(problem: QPProblem, x, nu, eta, upper, lower, rows, toleran
     return new_upper, new_lower, new_rows, same
 
 
+def _select(rows: torch.Tensor | None, t: torch.Tensor | None) -> torch.Tensor | None:
+    """t's batch rows `rows` (all without rows; None stays None)."""
+    return t if rows is None or t is None else t.index_select(0, rows)
+
+
 DENSE_BELOW = 32  # gathered batches smaller than this are solved densely: the tree's level-by-level
                  # elimination costs a fixed time per level, a dense Cholesky of a few matrices less
 
 
 def _take(H, problem: QPProblem, rows: torch.Tensor):
     """The Hessian operator and problem of the subjects `rows` [k]."""
-    pick = lambda t: None if t is None else t.index_select(0, rows)  # noqa: E731
+    pick = functools.partial(_select, rows)
+    sub_H: DenseHessian | TreeHessian
     if isinstance(H, DenseHessian):
         sub_H = DenseHessian(pick(H.H))
     else:
-        sub_H = TreeHessian(H.tree, pick(H.axes), pick(H.node_weight), pick(H.position_weight), H.damping)
-        if len(rows) < DENSE_BELOW:
-            sub_H = DenseHessian(sub_H.dense())
+        sub_tree = TreeHessian(H.tree, pick(H.axes), pick(H.node_weight), pick(H.position_weight), H.damping)
+        sub_H = DenseHessian(sub_tree.dense()) if len(rows) < DENSE_BELOW else sub_tree
     tree = sub_H if isinstance(sub_H, TreeHessian) else None
     dense = sub_H.H if isinstance(sub_H, DenseHessian) else None
     sub = QPProblem(dense, pick(problem.g), pick(problem.lb), pick(problem.ub), pick(problem.G), pick(problem.h), tree)

@@ -34,8 +34,9 @@ class PiqpBackend(QPBackend):
         if bool(done.all()):
             return QPSolution(x, done)
         rows = (~done).nonzero().flatten().tolist()
-        numpy = lambda t: None if t is None else t.detach().cpu().double().numpy()  # noqa: E731
-        H, g, lb, ub, G, h = (numpy(t) for t in (problem.dense_hessian, problem.g, problem.lb, problem.ub, problem.G, problem.h))
+        numpy = lambda t: t.detach().cpu().double().numpy()  # noqa: E731
+        H, g, lb, ub = (numpy(t) for t in (problem.dense_hessian, problem.g, problem.lb, problem.ub))
+        G, h = (None, None) if problem.rows is None else (numpy(t) for t in problem.rows)
         solved = torch.ones_like(done)
         for b in rows:  # PIQP solves one problem per call; the batched backend removes this loop
             qp = self._qpsolvers.Problem(H[b], g[b], None if G is None else G[b], None if h is None else h[b],

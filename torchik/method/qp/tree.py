@@ -22,6 +22,7 @@ factorisation per active set serves every right-hand side.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 
@@ -51,7 +52,7 @@ class JointTree:
         for j in sorted(range(n), key=lambda j: -_depth(parents, j, n)):  # build time only
             if parents[j] < n:
                 height[parents[j]] = max(height[parents[j]], height[j] + 1)
-        long = dict(dtype=torch.long, device=model.device)
+        long: dict[str, Any] = dict(dtype=torch.long, device=model.device)
         levels = []
         for h in range(max(height) + 1 if n else 0):
             members = [j for j in range(n) if height[j] == h]
@@ -198,7 +199,7 @@ class TreeFactor:
         y = r.new_zeros(n + 1, 3, k, B)
         values = []
         r_joint, c_joint = r[6:], c[6:]
-        for joints, parents, a, u, gain, held_here in self.steps:
+        for joints, parents, a, u, gain, _held_here in self.steps:
             y_j = y[joints]  # [m,3,k,B]
             beta = r_joint[joints] + (a[:, :, None] * y_j).sum(1)  # [m,k,B]
             value = gain[:, None] * beta + c_joint[joints]
@@ -215,7 +216,7 @@ class TreeFactor:
         omega = r.new_empty(n + 1, 3, k, B)
         omega[n] = x[3:6]
         x_joint = x[6:]
-        for (joints, parents, a, u, gain, held_here), value in zip(reversed(self.steps), reversed(values)):
+        for (joints, parents, a, u, gain, _held_here), value in zip(reversed(self.steps), reversed(values)):
             omega_p = omega[parents]
             rate = value - gain[:, None] * (u[:, :, None] * omega_p).sum(1)  # [m,k,B]
             x_joint[joints] = rate

@@ -9,6 +9,7 @@ Columns (CSV header, or keys of a TOML trial):
 | `recording` | the recording (.npz, .mvnx, .bvh, .c3d), relative to the manifest |
 | `model` | `human66`, `human48`, `icub` or a `.urdf` file (default `human66` when `height` is given) |
 | `height`, `mass`, `segments` | anthropometry: a Human66/48 generated for the subject (m, kg, `Segment=m; ...`) |
+| `subject_from` | a recording (MVNX, BVH, C3D static trial, .npz) the subject's Human66/48 is built from |
 | `map`, `calibration`, `calibration_frame` | a link map (built-in or .toml), a static trial to calibrate on, its frame |
 | `scheme`, `gain`, `position_gain`, `orientation_gain`, `backend` | the tracker's options, as `torchik track`'s |
 | `transient` | seconds left out of the statistics (default 2) |
@@ -30,6 +31,7 @@ subject; a trial's own keys come last:
 from __future__ import annotations
 
 import csv
+import functools
 import hashlib
 import json
 import re
@@ -63,6 +65,7 @@ class TrialSpec:
     height: float | None = None
     mass: float | None = None
     segments: tuple[tuple[str, float], ...] = ()
+    subject_from: str | None = None  # a recording the subject's model is built from
     map: str | None = None
     calibration: str | None = None
     calibration_frame: int | str | None = None
@@ -81,24 +84,38 @@ class TrialSpec:
     @property
     def subject_model(self) -> HumanSubject | None:
         """The subject a human model is generated for (None: the built-in model as it is)."""
-        return human_subject(self.height, self.mass, self.segments)
+        return human_subject(self.height, self.mass, self.segments, self.subject_from)
 
     def fingerprint(self) -> str:
         """A hash of everything the trial's result depends on: its options and its input files'
         sizes and modification times. A stored result with another fingerprint is stale."""
-        files = [Path(p) for p in (self.recording, self.calibration, self.map, self.model) if p and Path(p).is_file()]
+        files = [Path(p) for p in (self.recording, self.calibration, self.map, self.model, self.subject_from)
+                 if p and Path(p).is_file()]
         stats = [(str(p), p.stat().st_size, p.stat().st_mtime_ns) for p in files]
         text = json.dumps([asdict(self), stats], sort_keys=True, default=str)
         return hashlib.sha1(text.encode()).hexdigest()[:16]
 
 
-def human_subject(height: float | None, mass: float | None, segments=()) -> HumanSubject | None:
+def human_subject(height: float | None, mass: float | None, segments=(), subject_from: str | None = None
+                  ) -> HumanSubject | None:
     """A HumanSubject from what a manifest gives (the template's height or mass where one is
-    missing); None when it gives nothing. ModelError for values out of range."""
+    missing; the one a recording measures, for subject_from); None when it gives nothing. ModelError
+    for values out of range."""
+    if subject_from:
+        return _measured_subject(subject_from, height, mass)
     if height is None and mass is None and not segments:
         return None
     return HumanSubject(height=height or HumanSubject.height, mass=mass or HumanSubject.mass,
                         segment_lengths=dict(segments))
+
+
+@functools.lru_cache(maxsize=64)
+def _measured_subject(path: str, height: float | None, mass: float | None) -> HumanSubject:
+    """The subject a recording measures, read once per process for all of a subject's trials."""
+    from ...io import read
+    from ...io.subjects import subject_from_recording
+
+    return subject_from_recording(read(path), height, mass).subject
 
 
 def _float(value) -> float:
@@ -141,7 +158,7 @@ def _choice(valid):
 
 CONVERTERS = {
     "trial": str, "subject": str, "recording": str, "model": str, "height": _float, "mass": _float,
-    "segments": _segments, "map": str, "calibration": str, "calibration_frame": _frame,
+    "segments": _segments, "subject_from": str, "map": str, "calibration": str, "calibration_frame": _frame,
     "scheme": _choice(tuple(SCHEMES)), "gain": _float, "position_gain": _float, "orientation_gain": _float,
     "backend": _choice(("auto", *BACKENDS)), "transient": _float, "rrd": _bool,
 }
@@ -247,6 +264,10 @@ def _spec(row: dict, folder: Path) -> TrialSpec:
     values["recording"] = _existing(folder, values["recording"], "recording")
     if "calibration" in values:
         values["calibration"] = _existing(folder, values["calibration"], "calibration")
+    if "subject_from" in values:
+        if "segments" in values:
+            raise ValueError("segments and subject_from both give segment lengths; give one")
+        values["subject_from"] = _existing(folder, values["subject_from"], "subject_from")
     if "map" in values:
         values["map"] = _existing(folder, values["map"], "map") if Path(values["map"]).suffix else values["map"]
         load_map(values["map"])  # a map that does not parse fails here, with its own message
@@ -254,7 +275,7 @@ def _spec(row: dict, folder: Path) -> TrialSpec:
     spec = TrialSpec(**values)
     # HumanSubject checks the ranges (a ModelError here, before any work)
     if spec.subject_model is not None and spec.model not in ("human66", "human48"):
-        raise ValueError(f"height, mass and segments generate a human model; model {spec.model!r} is not one "
+        raise ValueError(f"height, mass, segments and subject_from generate a human model; model {spec.model!r} is not one "
                          f"(use human66 or human48)")
     return spec
 

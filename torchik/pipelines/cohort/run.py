@@ -82,7 +82,8 @@ def run_cohort(manifest: str | Path | list[TrialSpec], out: str | Path, *, clien
         shutil.rmtree(stale, ignore_errors=True)
     fingerprints = [spec.fingerprint() for spec in specs]
     todo = [(s, f) for s, f in zip(specs, fingerprints) if not _finished(out, s, f, retry_failed)]
-    run, sizes, n_workers, seconds, startup = uuid.uuid4().hex, (), 0, 0.0, 0.0
+    run, n_workers, seconds, startup = uuid.uuid4().hex, 0, 0.0, 0.0
+    sizes: tuple[int, ...] = ()
     try:
         if todo:
             start = time.perf_counter()

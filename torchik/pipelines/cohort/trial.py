@@ -29,19 +29,21 @@ import uuid
 import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
+from ...errors import InputError
 from ...io.maps import map_recording
 from ...io.recording import Recording
-from ...method.kinematics import KinematicModel
-from ...method.models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_model
 from ...io.targets import recording_targets
 from ...io.trajectory import save_trajectory
-from ..evaluation import summary, tracking_errors, tracking_statistics
-from ...method.tracker import DynamicalIK
+from ...method.kinematics import KinematicModel
+from ...method.models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_model
 from ...method.state import TargetSequence, Trajectory
+from ...method.tracker import DynamicalIK
+from ..evaluation import summary, tracking_errors, tracking_statistics
 from .manifest import TrialSpec, human_subject
 from .plan import Batch
 
@@ -99,7 +101,7 @@ def prepare(spec: TrialSpec, fingerprint: str = "") -> Prepared:
     would, and build its targets. Raises what the readers and the map raise."""
     from ...io import read
 
-    model = subject_model(spec.model, spec.height, spec.mass, spec.segments)
+    model = subject_model(spec.model, spec.height, spec.mass, spec.segments, spec.subject_from)
     recording = read(spec.recording)
     if spec.map:
         recording = mapped(recording, spec, model)
@@ -115,17 +117,20 @@ def mapped(recording: Recording, spec: TrialSpec, model: KinematicModel) -> Reco
     spec's static trial when it names one (else on the recording, for a map that calibrates)."""
     from ...io import read
 
+    if spec.map is None:
+        raise InputError(f"trial {spec.trial!r}: no map to apply")
     static = read(spec.calibration) if spec.calibration else None
     return map_recording(recording, spec.map, model, static, spec.calibration_frame)[0]
 
 
 @functools.lru_cache(maxsize=64)
-def subject_model(name: str, height: float | None, mass: float | None, segments: tuple) -> KinematicModel:
+def subject_model(name: str, height: float | None, mass: float | None, segments: tuple,
+                  subject_from: str | None = None) -> KinematicModel:
     """The model of a trial (a built-in name, for a subject's anthropometry, or a URDF file), kept
     per worker: a subject's trials share one compiled model."""
     if name.endswith(".urdf"):
         return KinematicModel.from_urdf(name)
-    return load_model(name, human_subject(height, mass, segments))
+    return load_model(name, human_subject(height, mass, segments, subject_from))
 
 
 def compatible_groups(prepared: list[Prepared]) -> list[list[Prepared]]:
@@ -228,7 +233,7 @@ def trial_row(p: Prepared, trajectory: Trajectory) -> dict:
     the statistics `torchik track` reports, after the spec's transient, over the frames whose
     targets are all known; status 'failed' with the reason when the trial diverged."""
     t, d, spec = trajectory.time, trajectory.diagnostics, p.spec
-    row = dict(trial=spec.trial, subject=spec.subject, model=spec.model, status="ok", error=None,
+    row: dict[str, Any] = dict(trial=spec.trial, subject=spec.subject, model=spec.model, status="ok", error=None,
                frames=len(t), duration_s=float(t[-1] - t[0]), rate_hz=1.0 / p.dt,
                qp_fallbacks=int((~d["solved"]).sum()), dropped_targets=int(d["dropped"].sum()),
                step_time_ms=summary(d["step_time"], t, 0.0)["median"] * 1e3)

@@ -27,13 +27,13 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from ...method import so3
 from ...io.recording import Recording, angular_velocity_from_orientations
+from ...method import so3
 from ...method.kinematics import KinematicModel
-from ..evaluation import link_motion
-from ...method.tracker import DynamicalIK
-from ...method.state import State, TargetSequence, Trajectory
 from ...method.settings import TrackerSettings
+from ...method.state import State, TargetSequence, Trajectory
+from ...method.tracker import DynamicalIK
+from ..evaluation import link_motion
 
 DEFAULT_GAIN = TrackerSettings.orientation_gain  # the tracker's K (1/s), from its one source
 NO_LIMIT = 19.9  # rad: a range this wide is no limit (the URDFs write +-10 rad for none)
@@ -185,7 +185,8 @@ def track(model: KinematicModel, recordings: Sequence[Recording], links, gain: f
     held = tracker.run(TargetSequence(sequence.time[0] + dt * torch.arange(n - 1, -1, -1.0, dtype=sequence.time.dtype).neg(),
                                       still(first.position), torch.zeros_like(still(first.linear_velocity)),
                                       still(first.rotation), torch.zeros_like(still(first.angular_velocity))))
-    rest = State(held.base_position[-1], held.base_rotation[-1], held.joint_positions[-1], torch.zeros_like(held.velocity[-1]))
+    rest = State(held.base_position[-1], held.base_rotation[-1], held.joint_positions[-1],
+                 torch.zeros_like(held.velocity[-1]))
     return tracker.run(sequence, initial=rest, progress=progress)
 
 
@@ -235,7 +236,8 @@ def analyse(model: KinematicModel, recordings: Sequence[Recording], links, traje
     J = J * rows[..., None].to(J.dtype)
     A = inverse_normal(J)
     return Analysis(model, links, time, R_m, w_m, p_m, v_m, R_hat, w_hat, p_hat, r, r_link, w_m - w_hat, e,
-                    p_m - p_hat, torch.nan_to_num(e_p), valid, derived, velocity_derived, s, active, sample, J, A, rows, axes, trajectory)
+                    p_m - p_hat, torch.nan_to_num(e_p), valid, derived, velocity_derived, s, active, sample, J, A, rows,
+                    axes, trajectory)
 
 
 def inverse_normal(J: torch.Tensor, damping: float = 1e-9) -> torch.Tensor:
@@ -252,9 +254,11 @@ def _task_jacobian(model: KinematicModel, trajectory: Trajectory, links, sample:
     with torch.inference_mode():
         kin = model(pick(trajectory.base_position), pick(trajectory.base_rotation), pick(trajectory.joint_positions),
                     names, jacobian=True, joint_axes=True)
+        assert kin.jacobian is not None  # asked for
         J = torch.cat((kin.jacobian[:, 0, :3], kin.jacobian[:, 1:, 3:].flatten(1, 2)), dim=1)
-    S = len(sample)
-    return J.reshape(S, B, *J.shape[1:]).clone(), kin.joint_axes.reshape(S, B, *kin.joint_axes.shape[1:]).clone()
+    S, axes = len(sample), kin.joint_axes
+    assert axes is not None  # asked for
+    return J.reshape(S, B, *J.shape[1:]).clone(), axes.reshape(S, B, *axes.shape[1:]).clone()
 
 
 # ------------------------------------------------------------------------------ structure
@@ -265,9 +269,9 @@ def autocorrelation_time(x: torch.Tensor, axis: int = 0) -> float:
     if T < 4:
         return 1.0
     # in numpy: the scores call this on every candidate's short series, where torch's per-call cost dominates
-    x = x.movedim(axis, 0).reshape(T, -1).double().numpy()
-    x = x - x.mean(0)
-    f = np.fft.rfft(x, n=2 * T, axis=0)
+    series = x.movedim(axis, 0).reshape(T, -1).double().numpy()
+    series = series - series.mean(0)
+    f = np.fft.rfft(series, n=2 * T, axis=0)
     acf = np.fft.irfft((f.real ** 2 + f.imag ** 2).sum(-1), n=2 * T)[:T]  # summed over the other dims
     if acf[0] <= 0:
         return 1.0
@@ -290,7 +294,8 @@ def link_summary(analysis: Analysis, b: int = 0, transient: float = 1.0) -> list
     of r's power), gyro_rms (|e| rms, rad/s: the gyro against the orientations), velocity_rms (|u|
     rms, rad/s)."""
     time = analysis.time
-    keep = (time >= time[0] + transient) if float(time[-1] - time[0]) > 2 * transient else torch.ones_like(time, dtype=torch.bool)
+    long_enough = float(time[-1] - time[0]) > 2 * transient
+    keep = (time >= time[0] + transient) if long_enough else torch.ones_like(time, dtype=torch.bool)
     rows = []
     rate = 1.0 / float(torch.diff(time).median()) if len(time) > 1 else 1.0
     above = analysis.model.select(analysis.links).ancestor_mask.bool()  # [L,n]

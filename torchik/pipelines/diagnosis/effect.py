@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
@@ -170,7 +170,7 @@ class Effect:
 
 def replace(recording: Recording, **changes) -> Recording:
     """A copy of `recording` with some arrays replaced (validated again)."""
-    fields = dict(time=recording.time, links=recording.links, orientation=recording.orientation,
+    fields: dict[str, Any] = dict(time=recording.time, links=recording.links, orientation=recording.orientation,
                   angular_velocity=recording.angular_velocity, base_link=recording.base_link,
                   base_position=recording.base_position, base_linear_velocity=recording.base_linear_velocity,
                   joint_names=recording.joint_names, joint_positions=recording.joint_positions,

@@ -44,7 +44,8 @@ class GyroBias(Effect):
 
     def summary(self):
         b = np.asarray(self.params["bias"])
-        return f"gyro bias on {self.target}: {np.linalg.norm(b) * 180 / np.pi:.2f} deg/s ({', '.join(f'{x:+.4f}' for x in b)} rad/s, sensor frame)"
+        components = ", ".join(f"{x:+.4f}" for x in b)
+        return f"gyro bias on {self.target}: {np.linalg.norm(b) * 180 / np.pi:.2f} deg/s ({components} rad/s, sensor frame)"
 
 
 @dataclass
@@ -87,7 +88,8 @@ class StreamDelay(Effect):
         return replace(recording, angular_velocity=w)
 
     def implausible(self):
-        return f"a delay of {self.params['delay']:.3g} s, beyond {MAX_DELAY} s" if abs(self.params["delay"]) > MAX_DELAY else ""
+        delay = self.params["delay"]
+        return f"a delay of {delay:.3g} s, beyond {MAX_DELAY} s" if abs(delay) > MAX_DELAY else ""
 
     def summary(self):
         which = f"every gyro ({len(self.params['links'])} sensors)" if self.target == "all" else f"gyro of {self.target}"
@@ -142,8 +144,9 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
         out.append(_delay(name, w_low, e, tr, te, time, max_delay))
         rates.append((name, w_low, e, tr, te))
     if len(rates) > 1 and target in (None, "all"):
-        names, w_low, e, tr, te = zip(*rates)
-        common = _delay("all", torch.cat(w_low, -1), torch.cat(e, -1), torch.stack(tr).all(0), torch.stack(te).all(0),
+        names = [name for name, *_ in rates]
+        common = _delay("all", torch.cat([r[1] for r in rates], -1), torch.cat([r[2] for r in rates], -1),
+                        torch.stack([r[3] for r in rates]).all(0), torch.stack([r[4] for r in rates]).all(0),
                         time, max_delay)
         common.params["links"] = list(names)
         out.append(common)

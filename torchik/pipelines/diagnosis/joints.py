@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ...errors import InputError
 from ...method import so3
 from .analysis import Analysis, inverse_normal
 from .effect import Effect, score
@@ -56,7 +57,7 @@ def joint_groups(urdf: str, links) -> tuple[JointGroup, ...]:
 @functools.lru_cache(maxsize=64)  # every round asks again for the same URDF
 def _joint_groups(urdf: str, links: tuple[str, ...]) -> tuple[JointGroup, ...]:
     root = ET.fromstring(urdf)
-    parent_joint = {j.find("child").get("link"): j for j in root.iter("joint")}
+    parent_joint = {_tag(j, "child").get("link"): j for j in root.iter("joint")}
     tracked = set(links)
 
     def chain(link):  # joints from the nearest tracked ancestor down to `link`
@@ -96,6 +97,14 @@ def _joint_groups(urdf: str, links: tuple[str, ...]) -> tuple[JointGroup, ...]:
     return tuple(groups)
 
 
+def _tag(element: ET.Element, tag: str) -> ET.Element:
+    """element's child <tag>, which a URDF joint must have."""
+    found = element.find(tag)
+    if found is None:
+        raise InputError(f"URDF joint {element.get('name')!r} has no <{tag}>")
+    return found
+
+
 def _stem(group: JointGroup) -> str:
     name = group.joints[0]
     return name.rsplit("_", 1)[0] if "_rot" in name else name
@@ -122,13 +131,13 @@ class MissingDof(Effect):
         axis = R0.T @ np.asarray(self.params["axis"], dtype=np.float64)  # in the joint's frame
         link = f"{self.joint_name()}_link"
         new = ET.Element("joint", name=self.joint_name(), type="continuous")
-        ET.SubElement(new, "parent", link=joint.find("parent").get("link"))
+        ET.SubElement(new, "parent", link=_tag(joint, "parent").get("link", ""))
         ET.SubElement(new, "child", link=link)
         if origin is not None:
             new.append(ET.fromstring(ET.tostring(origin)))
             joint.remove(origin)
         ET.SubElement(new, "axis", xyz=" ".join(f"{x:.9f}" for x in axis))
-        joint.find("parent").set("link", link)
+        _tag(joint, "parent").set("link", link)
         ET.SubElement(joint, "origin", xyz="0 0 0", rpy="0 0 0")
         children = list(root)
         root.insert(children.index(joint), ET.Element("link", name=link))
@@ -152,7 +161,7 @@ class JointLimit(Effect):
     def augment(self, urdf: str) -> str:
         root = ET.fromstring(urdf)
         joint = next(j for j in root.iter("joint") if j.get("name") == self.target)
-        limit = joint.find("limit")
+        limit = _tag(joint, "limit")
         limit.set(self.params["side"], f"{self.params['needed']:.6f}")
         return ET.tostring(root, encoding="unicode")
 
@@ -189,7 +198,7 @@ def _rows(analysis: Analysis, names) -> torch.Tensor:
 
 
 def _missing(analysis, b, train, test, urdf, target=None) -> list[Effect]:
-    out = []
+    out: list[Effect] = []
     k = analysis.sample
     tr, te = train[k], test[k]
     if int(tr.sum()) < 8 or int(te.sum()) < 8:
@@ -247,7 +256,7 @@ def _missing(analysis, b, train, test, urdf, target=None) -> list[Effect]:
 
 
 def _limits(analysis, b, train, test, target=None) -> list[Effect]:
-    out = []
+    out: list[Effect] = []
     model, k = analysis.model, analysis.sample
     active = analysis.active[k, b]  # [S,n]
     if not bool(active.any()):

@@ -47,17 +47,17 @@ def candidates(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tens
     those the data cannot identify (no fit; their notes say why). derived [L]: links without a gyro of
     their own (default: analysis.derived); target: only the candidates on that link or joint (a refit;
     each is fitted on its own data, so they are the same as among all)."""
-    kinds = set(kinds)
-    out = []
-    if kinds & {"gyro_bias", "gyro_scale", "stream_delay"}:
+    wanted = set(kinds)
+    out: list[Effect] = []
+    if wanted & {"gyro_bias", "gyro_scale", "stream_delay"}:
         out += gyro.fit(analysis, b, train, test, derived, target=target)
-    if kinds & {"misalignment", "sensor_delay", "heading_drift"}:
+    if wanted & {"misalignment", "sensor_delay", "heading_drift"}:
         out += placement.fit(analysis, b, train, test, derived, target=target)
-    if kinds & {"missing_dof", "joint_limit"}:
+    if wanted & {"missing_dof", "joint_limit"}:
         out += joints.fit(analysis, b, train, test, urdf, target=target)
-    if "position_offset" in kinds:
+    if "position_offset" in wanted:
         out += position.fit(analysis, b, train, test)
-    out = [c for c in out if c.kind in kinds and (target is None or c.target == target)
+    out = [c for c in out if c.kind in wanted and (target is None or c.target == target)
            and (c.fit is None or math.isfinite(c.score))]
     return sorted(out, key=lambda c: -c.score)
 
@@ -161,23 +161,35 @@ class _Subject:
     steps: list = field(default_factory=list)
     done: bool = False
     best_rejected: Effect | None = None
-    analysis: tuple | None = None
-    first: tuple | None = None
+    analysis: tuple[Analysis, int] | None = None  # set by the first round's analysis
+    first: tuple[Analysis, int] | None = None
     derived: torch.Tensor | None = None
     unobservable: list = field(default_factory=list)
     rejected: list = field(default_factory=list)
 
+    @property
+    def current(self) -> tuple[Analysis, int]:
+        """The latest analysis and the subject's index in its batch."""
+        assert self.analysis is not None, "analysed in the loop's first round"
+        return self.analysis
+
+    @property
+    def initial(self) -> tuple[Analysis, int]:
+        """The first round's analysis and the subject's index in its batch."""
+        assert self.first is not None, "analysed in the loop's first round"
+        return self.first
+
     def candidates(self, kinds, train=None, test=None, target=None) -> list[Effect]:
         """Candidates on the current analysis (train and test: halves() unless given; target: only
         those on that link or joint)."""
-        analysis, b = self.analysis
+        analysis, b = self.current
         if train is None:
             train, test = halves(analysis.time)
         return candidates(analysis, b, train, test, self.urdf, kinds, self.derived, target)
 
     def refit(self, effect: Effect) -> Effect | None:
         """The effect's kind and target fitted again on all the current data (after the transient)."""
-        train, test = halves(self.analysis[0].time, guard=0.0)
+        train, test = halves(self.current[0].time, guard=0.0)
         found = [c for c in self.candidates((effect.kind,), train | test, train | test, effect.target)
                  if c.fit is not None]
         return found[0] if found else None
@@ -250,7 +262,7 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
     _analyse(subjects, links, gain, progress, max_samples)
     for s in subjects:
         s.first = s.analysis
-        s.derived = s.analysis[0].derived[s.analysis[1]]
+        s.derived = s.current[0].derived[s.current[1]]
     say = log or (lambda _: None)
     for round_ in range(max_effects):
         added = []
@@ -259,7 +271,7 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
             if effect is None:
                 continue
             say(f"round {round_ + 1}: {effect.summary()} (score {effect.score:.0f})")
-            added.append((s, effect, errors(*s.analysis), s.saved()))
+            added.append((s, effect, errors(*s.current), s.saved()))
             s.add(effect)
         if not added:
             break
@@ -275,7 +287,7 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
                     moved.append(s)
             _analyse(moved, links, gain, progress, max_samples)
         for s, effect, before, saved in added:
-            after = errors(*s.analysis)
+            after = errors(*s.current)
             old, new = before.overall[effect.error], after.overall[effect.error]
             why = (f"re-tracked with it, the {effect.error} went from {old:.4g} to {new:.4g}" if new > old * (1 + WORSE)
                    else effect.implausible())  # refined, it may have gone where it cannot be
@@ -288,9 +300,9 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
             say(f"round {round_ + 1}: {effect.kind} at {effect.target} reverted ({why})")
     out = []
     for s, original in zip(subjects, recordings):
-        analysis, b = s.analysis
+        analysis, b = s.current
         remaining = sorted((row for row in link_summary(analysis, b) if "rms_deg" in row), key=lambda r: -r["rms_deg"])
-        out.append(Diagnosis(s.steps, s.recording, original, s.urdf, s.model, links, s.first, s.analysis,
+        out.append(Diagnosis(s.steps, s.recording, original, s.urdf, s.model, links, s.initial, s.current,
                              s.best_rejected, remaining, joint_summary(analysis, b), s.unobservable, s.rejected,
                              s.done))
     return out

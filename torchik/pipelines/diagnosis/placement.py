@@ -18,6 +18,7 @@ about a link's own joint axes is a joint offset to the data, and is reported as 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -150,7 +151,8 @@ class SensorDelay(Effect):
         return replace(recording, orientation=R, angular_velocity=w)
 
     def implausible(self):
-        return f"a delay of {self.params['delay']:.3g} s, beyond {MAX_DELAY} s" if abs(self.params["delay"]) > MAX_DELAY else ""
+        delay = self.params["delay"]
+        return f"a delay of {delay:.3g} s, beyond {MAX_DELAY} s" if abs(delay) > MAX_DELAY else ""
 
     def summary(self):
         return f"the {self.target} sensor is late on the others by {1e3 * self.params['delay']:.1f} ms"
@@ -199,7 +201,7 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
     misalignments = fit_linear(analysis, b, usable, R_hat, tr, te)
     delays = fit_linear(analysis, b, usable, -w_hat[..., None], tr, te)
     drifts = _drift(analysis, b, usable, tr, te, derived)
-    out = []
+    out: list[Effect] = []
     for i, mis, delay, head in zip(usable, misalignments, delays, drifts):
         name = analysis.links[i]
         if not mis.identified.shape[1]:
@@ -237,8 +239,8 @@ def _drift(analysis: Analysis, b: int, usable: list[int], tr: torch.Tensor, te: 
         y_tr, y_te = e_z[tr[n], usable[n]], e_z[te[n], usable[n]]
         extra.append((torch.tensor([[float(tr[n].sum())]], dtype=time.dtype), -y_tr.sum()[None],
                       max(float(y_tr.var(unbiased=False)), 1e-12), y_te[:, None],  # noise about the constant fitted
-                      lambda theta, m=len(y_te): -theta[0].expand(m)[:, None]))
-    fits = {}
+                      lambda theta, m=len(y_te): -theta[0].expand(m)[:, None]))  # noqa: B008  (m bound per gyro)
+    fits: dict[int, Any] = {}
     for group, channel in ((gyro, extra), (none, None)):
         if group:
             found = fit_linear(analysis, b, [usable[n] for n in group], drift.expand(len(group), -1, -1, -1),

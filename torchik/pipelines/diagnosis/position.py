@@ -36,7 +36,9 @@ class PositionOffset(Effect):
 
     def summary(self):
         o = np.asarray(self.params["offset"])
-        return f"the {self.target} position is measured {100 * np.linalg.norm(o):.1f} cm from its origin ({', '.join(f'{x:+.3f}' for x in o)} m, link frame)"
+        components = ", ".join(f"{x:+.3f}" for x in o)
+        return (f"the {self.target} position is measured {100 * np.linalg.norm(o):.1f} cm from its origin "
+                f"({components} m, link frame)")
 
 
 def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, cutoff: float = 5.0) -> list[Effect]:
@@ -45,8 +47,9 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, cut
         return []
     i = analysis.links.index(base)
     if bool(analysis.velocity_derived[b]):
-        return [PositionOffset("position_offset", base, notes="not identifiable: the base velocity is the positions' "
-                                                              "derivative, which agrees with them wherever they are measured")]
+        return [PositionOffset("position_offset", base,
+                               notes="not identifiable: the base velocity is the positions' "
+                                     "derivative, which agrees with them wherever they are measured")]
     time = analysis.time
     ok = analysis.valid[:, b, i] & torch.isfinite(analysis.p_m[:, b]).all(-1)
     tr, te = ok & train, ok & test

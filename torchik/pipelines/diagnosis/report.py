@@ -26,7 +26,6 @@ from .analysis import Analysis
 from .effect import SIGNIFICANT
 from .loop import Diagnosis
 
-
 _pyplot = pyplot
 
 
@@ -87,20 +86,23 @@ def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]
              f"{len(d.original.time)} frames at {d.original.frame_rate:.1f} Hz.", ""]
     if d.effects:
         lines += ["## Effects found (in the order added)", "",
-                  "| # | effect | parameters (± standard error) | score | MNTE before → after | RMSE before → after (rad/s) |",
+                  "| # | effect | parameters (± standard error) | score | MNTE before → after "
+                  "| RMSE before → after (rad/s) |",
                   "|---|---|---|---|---|---|"]
         for k, step in enumerate(d.steps, 1):
             e = step.effect
             params = "; ".join(f"{name} = {_json(v)} ± {_json(e.stderr.get(name, e.stderr.get(name + '_rad')))}"
                                for name, v in e.params.items() if name not in ("identified", "first_joint", "t0"))
             lines.append(f"| {k} | {e.summary()} | {params} | {e.score:.0f} | {_fmt(step.before.overall['mnte'])} → "
-                         f"{_fmt(step.after.overall['mnte'])} | {_fmt(step.before.overall['rmse'])} → {_fmt(step.after.overall['rmse'])} |")
+                         f"{_fmt(step.after.overall['mnte'])} | {_fmt(step.before.overall['rmse'])} → "
+                         f"{_fmt(step.after.overall['rmse'])} |")
         notes = [f"- {e.kind} at {e.target}: {e.notes}" for e in d.effects if e.notes]
         if notes:
             lines += ["", "Notes:", *notes]
     else:
         lines += ["## No effect found", "", "No candidate explains the residual significantly better than noise."]
-    lines += ["", "## Errors", "", "| | MNTE | angular velocity RMSE (rad/s) | base velocity RMSE (m/s) |", "|---|---|---|---|",
+    lines += ["", "## Errors", "", "| | MNTE | angular velocity RMSE (rad/s) | base velocity RMSE (m/s) |",
+              "|---|---|---|---|",
               f"| before | {_fmt(before['mnte'])} | {_fmt(before['rmse'])} | {_fmt(before['base_velocity_rmse'])} |",
               f"| after | {_fmt(after['mnte'])} | {_fmt(after['rmse'])} | {_fmt(after['base_velocity_rmse'])} |", ""]
     lines += ["Per link (before → after):", "", "| link | MNTE | RMSE (rad/s) |", "|---|---|---|"]
@@ -112,7 +114,8 @@ def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]
         lines += [f"- {e.kind} at {e.target} (score {e.score:.0f}): {e.notes}" for e in d.rejected]
     lines += ["", "## What remains", ""]
     if not d.complete:
-        lines.append(f"The loop stopped at its limit of effects ({len(d.steps) + sum('reverted' in e.notes for e in d.rejected)} "
+        rounds = len(d.steps) + sum("reverted" in e.notes for e in d.rejected)
+        lines.append(f"The loop stopped at its limit of effects ({rounds} "
                      f"rounds) while candidates were still significant: run it again with more (--max-effects) to go on.")
     elif d.best_rejected is not None:
         lines.append(f"The best candidate left, {d.best_rejected.summary()}, scores {d.best_rejected.score:.1f} "
@@ -135,8 +138,8 @@ def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]
                      f"{row['corr_alpha']:.2f} | {row['corr_joint']:.2f} ({row['joint'] or '-'}) | "
                      f"{row['band_hz'][0]:g}–{row['band_hz'][1]:g} | {row['gyro_rms']:.3f} |")
     if d.limits:
-        lines += ["", "Joints at a limit: " + ", ".join(f"{j['joint']} ({j['side']}, {100 * j['fraction']:.0f} % of the time)"
-                                                     for j in d.limits)]
+        at_limit = (f"{j['joint']} ({j['side']}, {100 * j['fraction']:.0f} % of the time)" for j in d.limits)
+        lines += ["", "Joints at a limit: " + ", ".join(at_limit)]
     lines += [""] + [f"![{name}]({path})" for name, path in figures.items()] + [""]
     return "\n".join(lines)
 

@@ -11,11 +11,11 @@ import math
 
 import torch
 
-from ...method import so3
 from ...io.recording import Recording
+from ...method import so3
 from ...method.kinematics import KinematicModel
-from ...synthetic.scenarios import scenario_motion
 from ...synthetic.motion import Motion, targets_from_motion
+from ...synthetic.scenarios import scenario_motion
 from .joints import MissingDof
 
 

@@ -51,7 +51,7 @@ class Run:
     step_time: torch.Tensor
     iterations: torch.Tensor
     trajectory: Trajectory = field(repr=False)
-    wall_time: torch.Tensor | None = None
+    wall_time: torch.Tensor = field(default_factory=lambda: torch.zeros(0))  # [T] s: the step's wall-clock time
 
 
 def run_method(case: Case, method: str, settings: Settings) -> Run:
@@ -62,16 +62,16 @@ def run_method(case: Case, method: str, settings: Settings) -> Run:
     tracker = DynamicalIK(model, case.links, position_gain=settings.gain, orientation_gain=settings.gain, dt=dt,
                           scheme=DYNAMICAL.get(method, "midpoint"), backend=settings.backend)
     initial = tracker.initial_state(sequence[0])
-    cpu = []
+    cpu: list[float] = []
     if method in DYNAMICAL:
-        tracker.step = _cpu_timed(tracker.step, cpu)
+        tracker.step = _cpu_timed(tracker.step, cpu)  # type: ignore[method-assign]  # timed on this instance only
         trajectory = tracker.run(sequence, initial, progress=False)
         iterations = torch.ones(len(sequence), dtype=torch.long)
     else:
         kind = WholeBodyIK if method == "whole-body" else PairwiseIK
         ik = kind(model, case.links, tolerance=settings.tolerance, step_tolerance=settings.step_tolerance,
                   max_iterations=settings.max_iterations, backend=settings.backend)
-        ik.solve = _cpu_timed(ik.solve, cpu)
+        ik.solve = _cpu_timed(ik.solve, cpu)  # type: ignore[method-assign]  # timed on this instance only
         trajectory = ik.run(sequence, initial)
         iterations = trajectory.diagnostics["iterations"][:, 0]
     # the instantaneous methods' velocities are central differences, meant at t_k: no scheme

@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import platform
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -22,7 +23,7 @@ def statistics(run: Run, transient: float) -> dict:
     m, r, t = known(pick(run.mnte)), known(pick(run.rmse)), pick(run.step_time) * 1e3
     median = lambda v: float(v.median()) if len(v) else float("nan")  # noqa: E731  (no frame with every target)
     p99 = lambda v: float(v.quantile(0.99)) if len(v) else float("nan")  # noqa: E731
-    row = dict(model=run.model, scenario=run.scenario, method=run.method, samples=len(t),
+    row: dict[str, Any] = dict(model=run.model, scenario=run.scenario, method=run.method, samples=len(t),
                mnte_median=median(m), mnte_p99=p99(m), rmse_median=median(r), rmse_p99=p99(r),
                time_median_ms=median(t), time_p99_ms=p99(t))
     row["spread"] = row["time_p99_ms"] / row["time_median_ms"]

@@ -1,0 +1,105 @@
+"""The live loop over loopback UDP (torchik/pipelines/live.py with torchik/pipelines/replay.py): a
+fault-free replay tracks to the same estimates as `track` on the data as the wire carried it;
+with faults it finishes, stays as accurate and counts exactly what was injected; two characters
+are tracked as one batch."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+import torch
+
+from torchik.io import read
+from torchik.io.maps import load_map, map_recording
+from torchik.live.mvn import MvnSource
+from torchik.live.sample import Url
+from torchik.method.models import TRACKED_LINKS, load_model
+from torchik.pipelines.live import LiveOptions, Selection, track_live
+from torchik.pipelines.replay import Faults, replay, wire_recording
+from torchik.pipelines.track import track_recording
+from torchik.synthetic.scenarios import scenario
+
+MVNX = "../shared/data/mvnx/test_mocap.mvnx"
+
+
+@pytest.fixture(scope="module")
+def model():
+    torch.set_num_threads(1)
+    return load_model("human66")
+
+
+@pytest.fixture(scope="module")
+def walking(model):
+    """A walk measured with noise (0.01 rad, 0.05 rad/s): what faults add is then judged against
+    errors a sensor has, not against rounding."""
+    return scenario("walking", model, TRACKED_LINKS["human66"], duration=3.0, rate=100.0, orientation_noise=0.01,
+                    gyro_noise=0.05)
+
+
+@pytest.fixture(scope="module")
+def clean_walk(model, walking):
+    return live_run(model, walking)[0]
+
+
+def live_run(model, recording, link_map=None, faults=None, characters=1, speed=3.0):
+    """Replay `recording` to a live session on an ephemeral loopback port; the session's result
+    and the replay's log. Every sample is queued (backlog) so that the run is deterministic."""
+    source = MvnSource(Url("udp", "127.0.0.1", 0))
+    port = source.address[1]
+    logs = []
+    sender = threading.Thread(target=lambda: logs.append(
+        replay(recording, Url("udp", "127.0.0.1", port), speed, characters, faults, lead_in_s=0.1)))
+    sender.start()
+    links = TRACKED_LINKS["human66"]
+    result = track_live(source, model, lambda names: Selection.build(names, links, link_map),
+                        options=LiveOptions(backlog=100000, stop_when_idle_s=0.4))
+    sender.join()
+    return result, logs[0]
+
+
+def test_a_fault_free_replay_of_the_mvnx_recording_tracks_as_track_does_on_what_the_wire_carried(model):
+    recording = read(MVNX)
+    result, log = live_run(model, recording, load_map("xsens_to_human"))
+    offline, _ = track_recording(model, *_mapped(wire_recording(recording), model))
+    live = result.trajectories[0]
+    assert result.source_stats["samples"] == log.frames == len(recording.time) and not result.skipped
+    torch.testing.assert_close(live.time, offline.time, rtol=0, atol=1e-12)
+    torch.testing.assert_close(live.joint_positions, offline.joint_positions, rtol=0, atol=1e-9)
+
+
+def _mapped(recording, model):
+    mapped, link_map = map_recording(recording, "xsens_to_human", model)
+    return mapped, mapped.links
+
+
+def test_a_fault_free_replay_of_a_generated_walk_tracks_as_track_does(model, walking, clean_walk):
+    result = clean_walk
+    offline, _ = track_recording(model, wire_recording(walking), TRACKED_LINKS["human66"])
+    torch.testing.assert_close(result.trajectories[0].joint_positions, offline.joint_positions, rtol=0, atol=1e-9)
+
+
+def test_with_loss_reordering_and_duplicates_it_finishes_as_accurate_and_counts_what_was_injected(model, walking,
+                                                                                                  clean_walk):
+    clean = clean_walk
+    faulty, log = live_run(model, walking, faults=Faults(loss=0.05, reorder=0.02, duplicate=0.02, seed=3))
+    assert log.lost and log.reordered and log.duplicated
+    stats = faulty.source_stats
+    assert stats["lost"] == log.lost + log.reordered
+    assert stats["late"] == log.reordered_datagrams
+    assert stats["duplicates"] == log.duplicated
+    assert stats["samples"] == log.frames - log.lost - log.reordered
+    after = lambda r: r.report(transient=1.0)["characters"]["0"]["mnte"]["median"]  # noqa: E731
+    assert after(faulty) <= 2 * after(clean)
+
+
+def test_two_characters_stream_at_once_and_are_tracked_as_one_batch(model, walking):
+    short = scenario("walking", model, TRACKED_LINKS["human66"], duration=1.0, rate=100.0)
+    result, log = live_run(model, short, characters=2)
+    assert set(result.trajectories) == {0, 1}
+    assert all(len(t.time) == log.frames for t in result.trajectories.values())
+    # one step per frame for both (a batch of two); the second joins one step late at most
+    assert len(result.step_time) <= log.frames + 1
+    first, second = (result.trajectories[c].joint_positions[:, 0] for c in (0, 1))
+    assert not torch.allclose(first, second)  # each its own phase of the walk
+    assert all(r["mnte"]["median"] < 1e-2 for r in result.report(transient=0.5)["characters"].values())

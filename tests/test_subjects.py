@@ -1,0 +1,111 @@
+"""io.subjects: a subject's model from a recording places the MVNX file's joints exactly (checked
+through pinocchio on the written URDF, not torchik's kinematics) and takes BVH segment lengths from
+the bone offsets; a converted .npz builds the same subject; track, models take it from the command line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from torchik.cli import main
+from torchik.io import load_recording, read, save_recording
+from torchik.io.maps import load_map
+from torchik.io.subjects import LENGTH_CHILD, subject_from_recording
+from torchik.method.models.human import TEMPLATE
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+needs_shared = pytest.mark.skipif(not (SHARED / "mvnx" / "test_mocap.mvnx").is_file(), reason="../shared/data absent")
+
+
+@pytest.fixture(autouse=True)
+def _no_allocator_tuning(monkeypatch):
+    monkeypatch.setattr("torchik.pipelines.memory.keep_freed_memory", lambda: True)
+
+
+@needs_shared
+@pytest.mark.parametrize("dof", [48, 66])
+def test_the_mvnx_model_places_every_joint_at_the_files_pos_b_points(tmp_path, dof):
+    pinocchio = pytest.importorskip("pinocchio")
+    assert main(["models", "--from", str(SHARED / "mvnx" / "test_mocap.mvnx"), "--model", f"human{dof}",
+                 "--write", str(tmp_path)]) == 0
+    model = pinocchio.buildModelFromUrdf(str(tmp_path / f"human{dof}.urdf"))
+    points = read(SHARED / "mvnx" / "test_mocap.mvnx").meta["skeleton"]["points"]
+    checked = 0
+    for segment in TEMPLATE[1:]:
+        label = next(lb for lb in points[segment.name] if lb.startswith("j") and lb in points[segment.parent])
+        # the first revolute joint of the segment's spherical joint: placed in its parent link's frame
+        # (the dummy links between the revolute joints add no offset)
+        first = next(j for j in range(1, model.njoints) if model.names[j].startswith(f"{segment.joint}_rot"))
+        assert model.names[model.parents[first]].startswith(f"{by_name(segment.parent).joint}_rot") or \
+            segment.parent == "Pelvis"
+        np.testing.assert_allclose(model.jointPlacements[first].translation, points[segment.parent][label],
+                                   atol=1e-6, rtol=0, err_msg=f"{segment.name}: {label}")
+        checked += 1
+    assert checked == 22  # every joint of the 23-segment body
+    report = json.loads((tmp_path / "subject.json").read_text())
+    assert report["mass_from"].startswith("the template") and len(report["joint_origins_from_file"]) == 22
+
+
+def by_name(name: str):
+    return next(s for s in TEMPLATE if s.name == name)
+
+
+@needs_shared
+@pytest.mark.parametrize("file,map_name", [("cmu_131_01.bvh", "cmu_to_human"),
+                                           ("bandai_walk_normal_001.bvh", "bandai_to_human")])
+def test_bvh_segment_lengths_are_the_bone_offsets_norms(file, map_name):
+    recording = read(SHARED / "bvh" / file)
+    built = subject_from_recording(recording)
+    assert built.link_map == load_map(map_name).name
+    skeleton, scale = recording.meta["skeleton"], recording.meta["metres_per_unit"]
+    sources = {e.link: e.segment for e in load_map(map_name).entries}
+    raw = {}  # the file's OFFSET lines, in its own units
+    text = (SHARED / "bvh" / file).read_text().split()
+    for i, word in enumerate(text[:-4]):
+        if word in ("ROOT", "JOINT") and text[i + 3] == "OFFSET":
+            raw[text[i + 1]] = np.array([float(v) for v in text[i + 4:i + 7]])
+    checked = 0
+    for segment, length in built.from_file.items():
+        child = sources[LENGTH_CHILD[segment]]
+        if skeleton["parents"][child] == sources[segment]:  # one bone: the length is its offset's norm
+            assert abs(length - np.linalg.norm(raw[child]) * scale) < 1e-6, segment
+            checked += 1
+    assert checked >= 8  # the limbs at least
+    assert {"RightUpperLeg", "RightLowerLeg", "LeftUpperArm", "LeftForeArm"} <= set(built.from_file)
+
+
+@needs_shared
+def test_a_converted_npz_builds_the_same_subject(tmp_path):
+    recording = read(SHARED / "c3d" / "HC002D02.c3d")
+    save_recording(recording, tmp_path / "static.npz")
+    a, b = subject_from_recording(recording), subject_from_recording(load_recording(tmp_path / "static.npz"))
+    assert a.subject == b.subject and a.from_file == b.from_file
+    assert a.height_from == "the file" and a.subject.height == 1.45 and abs(a.subject.mass - 32.1) < 1e-3
+    assert {"RightUpperLeg", "RightLowerLeg", "RightFoot", "RightUpperArm", "RightForeArm"} <= set(a.from_file)
+
+
+@needs_shared
+def test_track_with_the_subject_from_the_static_trial(tmp_path, capsys):
+    c3d = SHARED / "c3d"
+    assert main(["track", "--input", str(c3d / "HC002D25.c3d"), "--calibration", str(c3d / "HC002D02.c3d"),
+                 "--subject-from", str(c3d / "HC002D02.c3d"), "--model", "human48"]) == 0
+    out = capsys.readouterr().out
+    assert "subject from" in out and "height 1.450 m (the file)" in out and "through map 'plug-in gait to human'" in out
+
+
+@needs_shared
+def test_a_cohort_manifests_subject_from_column_builds_the_measured_subject(tmp_path):
+    from torchik.pipelines.cohort.manifest import ManifestError, read_manifest
+
+    static = SHARED / "c3d" / "HC002D02.c3d"
+    (tmp_path / "m.csv").write_text(f"trial,subject,recording,model,subject_from\n"
+                                    f"t1,s1,{SHARED / 'c3d' / 'HC002D25.c3d'},human48,{static}\n")
+    (spec,) = read_manifest(tmp_path / "m.csv")
+    assert spec.subject_model == subject_from_recording(read(static)).subject
+    (tmp_path / "bad.csv").write_text(f"trial,subject,recording,model,subject_from\n"
+                                      f"t1,s1,{SHARED / 'c3d' / 'HC002D25.c3d'},icub,{static}\n")
+    with pytest.raises(ManifestError, match="generate a human model"):
+        read_manifest(tmp_path / "bad.csv")

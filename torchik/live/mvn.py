@@ -1,0 +1,382 @@
+"""The Xsens MVN real-time network stream: datagrams parsed, joined into one `Sample` per character
+and frame, received over UDP or TCP, and written (for `torchik replay`).
+
+Format: Xsens Technologies, "MVN real-time network streaming protocol specification" (revisions
+E to O, MVN Analyze/Animate 3.3 to 2022). Every datagram is a 24-byte big-endian header and a
+payload of items:
+
+| bytes | field |
+|---|---|
+| 6 | ID string: "MXTP" and the message type as two ASCII digits ("02", "21", "22", ...) |
+| 4 | sample counter, u32: the frame |
+| 1 | datagram counter, u8: the datagram's index within the frame's message; MSB set on the last |
+| 1 | number of items, u8: segments (or points) in this datagram |
+| 4 | time code, u32: ms since the start of the stream |
+| 1 | character ID, u8 |
+| 1 | number of body segments, u8 (23 for a full body) |
+| 1 | number of props, u8 |
+| 1 | number of finger tracking segments, u8 |
+| 2 | reserved |
+| 2 | size of the payload in bytes, u16 |
+
+Items, per segment, big-endian (segment ID i32, then float32 values):
+
+| type | item | bytes |
+|---|---|---|
+| 02 | quaternion pose: ID, position x y z, quaternion re i j k | 32 |
+| 21 | linear segment kinematics: ID, position, velocity, acceleration (3 each) | 40 |
+| 22 | angular segment kinematics: ID, quaternion re i j k, angular velocity, angular acceleration (3 each) | 44 |
+
+Positions m, velocities m/s, angular velocities rad/s, all in MVN's Z-up world frame; the
+quaternion turns the segment frame into the world frame. Segment IDs 1..23 are the body segments
+in MVN's order (`MVN_SEGMENTS`, the names MVNX files and the `xsens_to_human` map use); props and
+finger segments follow them and are not read. A large message is split over several datagrams,
+each with its own item count and an increasing datagram counter. Over TCP the same datagrams
+follow each other on the connection.
+"""
+
+from __future__ import annotations
+
+import errno
+import socket
+import struct
+import time
+from dataclasses import dataclass, field
+from typing import Iterator, NamedTuple
+
+import numpy as np
+
+from ..errors import InputError
+from .sample import Sample, SourceStats, Url, snap_rate
+
+MVN_SEGMENTS = ("Pelvis", "L5", "L3", "T12", "T8", "Neck", "Head", "RightShoulder", "RightUpperArm",
+                "RightForeArm", "RightHand", "LeftShoulder", "LeftUpperArm", "LeftForeArm", "LeftHand",
+                "RightUpperLeg", "RightLowerLeg", "RightFoot", "RightToe", "LeftUpperLeg", "LeftLowerLeg",
+                "LeftFoot", "LeftToe")
+HEADER = struct.Struct(">6sIBBIBBBB2xH")  # the 24 bytes of the table above
+MAGIC = b"MXTP"
+LAST_DATAGRAM = 0x80
+ITEMS = {  # message type -> one item's fields, big-endian
+    "02": np.dtype([("id", ">i4"), ("position", ">f4", 3), ("quaternion", ">f4", 4)]),
+    "21": np.dtype([("id", ">i4"), ("position", ">f4", 3), ("velocity", ">f4", 3), ("acceleration", ">f4", 3)]),
+    "22": np.dtype([("id", ">i4"), ("quaternion", ">f4", 4), ("angular_velocity", ">f4", 3),
+                    ("angular_acceleration", ">f4", 3)]),
+}
+MAX_PENDING = 8  # frames of a character held while their datagrams arrive; older ones are given up
+
+
+class MalformedDatagram(ValueError):
+    """A datagram the parser refuses: short, a wrong header, counts that do not add up, bad values."""
+
+
+class UnsupportedMessage(ValueError):
+    """A well-formed MVN datagram of a message type torchik does not read (joint angles, meta data, ...)."""
+
+
+class Header(NamedTuple):
+    message_type: str
+    sample_counter: int
+    datagram_counter: int
+    items: int
+    time_code: int
+    character: int
+    body_segments: int
+    props: int
+    finger_segments: int
+    payload_size: int
+
+    @property
+    def part(self) -> int:
+        """The datagram's index within its frame's message."""
+        return self.datagram_counter & ~LAST_DATAGRAM
+
+    @property
+    def last(self) -> bool:
+        return bool(self.datagram_counter & LAST_DATAGRAM)
+
+
+class Datagram(NamedTuple):
+    header: Header
+    items: np.ndarray  # structured, ITEMS[header.message_type]
+
+
+def parse_header(data: bytes) -> Header:
+    if len(data) < HEADER.size:
+        raise MalformedDatagram(f"short: {len(data)} bytes, a header alone is {HEADER.size}")
+    ident, *fields = HEADER.unpack_from(data)
+    if ident[:4] != MAGIC or not ident[4:].isdigit():
+        raise MalformedDatagram(f"wrong ID string {ident!r}; expected MXTP and two digits")
+    return Header(ident[4:].decode(), *fields)
+
+
+def parse_datagram(data: bytes) -> Datagram:
+    """One datagram's header and items. MalformedDatagram saying what is wrong; UnsupportedMessage
+    for a message type other than 02, 21 and 22."""
+    header = parse_header(data)
+    if header.message_type not in ITEMS:
+        raise UnsupportedMessage(f"message type {header.message_type}")
+    item = ITEMS[header.message_type]
+    payload = len(data) - HEADER.size
+    if header.payload_size not in (0, payload):  # revisions before MVN 2019 leave it 0
+        raise MalformedDatagram(f"payload size field {header.payload_size}, payload {payload} bytes")
+    if header.items * item.itemsize != payload:
+        raise MalformedDatagram(f"{header.items} items of {item.itemsize} bytes in a payload of {payload}")
+    items = np.frombuffer(data, item, header.items, HEADER.size)
+    limit = header.body_segments + header.props + header.finger_segments
+    if items.size and (int(items["id"].min()) < 1 or int(items["id"].max()) > limit):
+        raise MalformedDatagram(f"segment IDs {int(items['id'].min())}..{int(items['id'].max())} outside 1..{limit}")
+    names = item.names or ()
+    values = [items[name] for name in names[1:]]
+    if not all(np.isfinite(v).all() for v in values):
+        raise MalformedDatagram("non-finite values")
+    if "quaternion" in names and items.size:
+        norm = np.linalg.norm(items["quaternion"].astype(np.float64), axis=-1)
+        if np.abs(norm - 1.0).max() > 1e-3:
+            raise MalformedDatagram(f"quaternion of norm {norm[np.abs(norm - 1).argmax()]:.4g}")
+    return Datagram(header, items)
+
+
+def encode_datagrams(message_type: str, sample_counter: int, time_code: int, character: int, ids: np.ndarray,
+                     columns: dict[str, np.ndarray], body_segments: int = 23, max_bytes: int = 1472) -> list[bytes]:
+    """One frame's message as datagrams of at most `max_bytes` (a UDP payload on Ethernet), for
+    `torchik replay`. ids [n]; columns: the type's fields (ITEMS) as [n,k] arrays, cast to float32."""
+    item = ITEMS[message_type]
+    items = np.zeros(len(ids), item)
+    items["id"] = ids
+    for name in (item.names or ())[1:]:
+        items[name] = columns.get(name, 0.0)
+    per_datagram = max(1, (max_bytes - HEADER.size) // item.itemsize)
+    chunks = [items[i:i + per_datagram] for i in range(0, len(items), per_datagram)] or [items]
+    out = []
+    for k, chunk in enumerate(chunks):
+        counter = k | (LAST_DATAGRAM if k == len(chunks) - 1 else 0)
+        header = HEADER.pack(MAGIC + message_type.encode(), sample_counter & 0xFFFFFFFF, counter, len(chunk),
+                             time_code & 0xFFFFFFFF, character, body_segments, 0, 0, chunk.nbytes)
+        out.append(header + chunk.tobytes())
+    return out
+
+
+@dataclass
+class _Frame:
+    """A frame's datagrams as they arrive: per message type, the items by datagram index."""
+
+    time_code: int
+    body_segments: int
+    parts: dict[str, dict[int, np.ndarray]] = field(default_factory=dict)
+    last: dict[str, int] = field(default_factory=dict)
+
+    def complete(self, types) -> bool:
+        return all(t in self.last and len(self.parts[t]) == self.last[t] + 1 for t in types)
+
+
+@dataclass
+class _Character:
+    newest: int | None = None  # the frame last delivered
+    pending: dict[int, _Frame] = field(default_factory=dict)
+    types: set[str] = field(default_factory=set)  # the message types a complete frame holds
+    settled: bool = False  # types known: a datagram of a later frame has arrived
+
+
+class Assembler:
+    """Datagrams in, complete samples out: one per (character, sample counter), from every message
+    type the stream carries (learnt from its first frame), split datagrams joined. Duplicates,
+    late (reordered) datagrams and malformed ones are counted in `stats` and dropped."""
+
+    def __init__(self):
+        self.stats = SourceStats()
+        self._characters: dict[int, _Character] = {}
+
+    def add(self, data: bytes, arrival: float) -> list[Sample]:
+        """The samples that `data` completes (usually none or one)."""
+        self.stats.datagrams += 1
+        try:
+            datagram = parse_datagram(data)
+        except MalformedDatagram:
+            self.stats.malformed += 1
+            return []
+        except UnsupportedMessage:
+            self.stats.ignored += 1
+            return []
+        h = datagram.header
+        c = self._characters.setdefault(h.character, _Character())
+        counter = h.sample_counter
+        if c.newest is not None and counter <= c.newest:
+            if counter == c.newest:
+                self.stats.duplicates += 1
+            else:
+                self.stats.late += 1
+            return []
+        frame = c.pending.setdefault(counter, _Frame(h.time_code, h.body_segments))
+        parts = frame.parts.setdefault(h.message_type, {})
+        if h.part in parts:
+            self.stats.duplicates += 1
+            return []
+        parts[h.part] = datagram.items
+        if h.last:
+            frame.last[h.message_type] = h.part
+        c.types.add(h.message_type)
+        if not c.settled and len(c.pending) > 1:
+            c.settled = True
+        if len(c.pending) > MAX_PENDING:
+            self._give_up(c, min(c.pending))
+        return self._deliver(h.character, c, arrival) if c.settled else []
+
+    def _give_up(self, c: _Character, counter: int) -> None:
+        del c.pending[counter]
+        self.stats.incomplete += 1
+
+    def _deliver(self, character: int, c: _Character, arrival: float) -> list[Sample]:
+        """The pending frames that are complete, oldest first; the incomplete ones before them given up."""
+        out = []
+        for counter in sorted(c.pending):
+            frame = c.pending[counter]
+            if not frame.complete(c.types):
+                continue
+            for older in [k for k in c.pending if k < counter]:
+                self._give_up(c, older)
+            del c.pending[counter]
+            if c.newest is not None:
+                self.stats.lost += counter - c.newest - 1
+            c.newest = counter
+            self.stats.samples += 1
+            out.append(_sample(character, counter, frame, arrival))
+        return out
+
+
+def _sample(character: int, counter: int, frame: _Frame, arrival: float) -> Sample:
+    """A complete frame as a Sample of the body segments (props and fingers left out)."""
+    n = frame.body_segments
+    names = MVN_SEGMENTS if n == len(MVN_SEGMENTS) else tuple(f"segment{i}" for i in range(1, n + 1))
+    fields: dict[str, np.ndarray] = {}
+    for message_type in ("02", "21", "22"):  # later types overwrite: 22's quaternion is the pose's own
+        if message_type not in frame.parts:
+            continue
+        chunks = frame.parts[message_type]
+        items = np.concatenate([chunks[k] for k in range(len(chunks))])
+        body = items[items["id"] <= n]
+        rows = body["id"] - 1
+        for name in ("quaternion", "angular_velocity", "position", "velocity"):
+            if name in (items.dtype.names or ()):
+                column = np.full((n, 4 if name == "quaternion" else 3), np.nan)
+                column[rows] = body[name]
+                fields[name] = column
+    quaternion = fields.get("quaternion", np.full((n, 4), np.nan))
+    return Sample(character, counter, frame.time_code / 1000.0, arrival, names, quaternion,
+                  fields.get("angular_velocity"), fields.get("position"), fields.get("velocity"))
+
+
+class MvnSource:
+    """An MVN stream received over UDP or TCP (MVN connects to the receiver), listening on
+    url.host:url.port.
+    Iterate for samples; `rate` is the frame rate given or, else, estimated from the time codes of
+    the first two samples (the first is held back until then). `close()` ends the iteration."""
+
+    def __init__(self, url: Url, rate: float | None = None, receive_buffer: int = 1 << 22):
+        self.url, self.rate = url, rate
+        self.assembler = Assembler()
+        self._closed = False
+        try:
+            if url.scheme == "udp":
+                self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                self.socket.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, receive_buffer)
+            else:  # MVN connects to the receiver it is told to stream to
+                self.socket = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            self.socket.bind((url.host, url.port))
+            if url.scheme == "tcp":
+                self.socket.listen(1)
+        except OSError as exc:
+            reason = "the port is in use" if exc.errno == errno.EADDRINUSE else exc.strerror or str(exc)
+            raise InputError(f"cannot listen on {url}: {reason}") from None
+        self.socket.settimeout(0.2)  # how soon close() is noticed
+
+    @property
+    def stats(self) -> SourceStats:
+        return self.assembler.stats
+
+    @property
+    def address(self) -> tuple[str, int]:
+        """Where the source listens: the port when url.port was 0."""
+        return self.socket.getsockname()
+
+    def close(self) -> None:
+        self._closed = True
+
+    def _datagrams(self) -> Iterator[tuple[bytes, float]]:
+        if self.url.scheme == "udp":
+            while not self._closed:
+                try:
+                    data = self.socket.recv(65536)
+                except TimeoutError:
+                    continue
+                yield data, time.perf_counter()
+            return
+        connection = None
+        while connection is None and not self._closed:
+            try:
+                connection, _ = self.socket.accept()
+            except TimeoutError:
+                continue
+        if connection is None:
+            return
+        connection.settimeout(0.2)
+        buffer = b""
+        while not self._closed:  # TCP: datagrams back to back, each as long as its header says
+            try:
+                chunk = connection.recv(65536)
+            except TimeoutError:
+                continue
+            if not chunk:
+                return
+            buffer += chunk
+            while len(buffer) >= HEADER.size:
+                try:
+                    header = parse_header(buffer)
+                    size = header.payload_size or header.items * ITEMS.get(header.message_type, ITEMS["02"]).itemsize
+                except MalformedDatagram:  # lost framing: nothing after it can be trusted until resynchronised
+                    start = buffer.find(MAGIC, 1)
+                    self.assembler.stats.malformed += 1
+                    buffer = buffer[start:] if start > 0 else b""
+                    continue
+                if len(buffer) < HEADER.size + size:
+                    break
+                yield buffer[:HEADER.size + size], time.perf_counter()
+                buffer = buffer[HEADER.size + size:]
+        connection.close()
+
+    def __iter__(self) -> Iterator[Sample]:
+        held: list[Sample] = []
+        try:
+            for data, arrival in self._datagrams():
+                for sample in self.assembler.add(data, arrival):
+                    if self.rate is None:
+                        held.append(sample)
+                        self.rate = _estimate_rate(held)
+                        if self.rate is None:
+                            continue
+                        yield from held
+                        held = []
+                    else:
+                        yield sample
+        finally:
+            self.socket.close()
+
+
+def _estimate_rate(samples: list[Sample]) -> float | None:
+    """The frame rate from the time codes of two samples of one character, or None before there are two."""
+    first = samples[0]
+    for s in samples[1:]:
+        if s.character == first.character and s.time > first.time:
+            return snap_rate((s.frame - first.frame) / (s.time - first.time))
+    return None
+
+
+def rotations(quaternion: np.ndarray) -> np.ndarray:
+    """Rotation matrices [...,3,3] of the quaternions [...,4] (w, x, y, z) a stream carried, each
+    normalised first (float32 leaves them 1e-7 off unit length); NaN where a quaternion is."""
+    import torch
+
+    from ..method import so3
+
+    q = np.asarray(quaternion, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return so3.quaternion_to_matrix(torch.from_numpy(q)).numpy()

@@ -1,0 +1,18 @@
+"""A source by its URL: the one place that knows which module reads which scheme."""
+
+from __future__ import annotations
+
+from .sample import Source, parse_url
+
+
+def open_source(text: str, rate: float | None = None, timeout: float = 5.0) -> Source:
+    """The source a URL names (udp, tcp: an MVN stream; lsl: a Mocap stream), `rate` its frame
+    rate when known (else the source finds it). timeout: how long an LSL stream is looked for."""
+    url = parse_url(text)
+    if url.scheme == "lsl":
+        from .lsl import LslSource
+
+        return LslSource(url, rate, timeout)
+    from .mvn import MvnSource
+
+    return MvnSource(url, rate)
