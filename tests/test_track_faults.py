@@ -140,3 +140,13 @@ def _peek(process) -> str:
 
     ready, _, _ = select.select([process.stderr], [], [], 0)
     return os.read(process.stderr.fileno(), 65536).decode(errors="replace") if ready else ""
+
+
+@pytest.mark.parametrize("args", [
+    ("retarget", "--rate", "nan"), ("retarget", "--gain", "-1"), ("retarget", "--max-rate", "inf"),
+    ("experiment", "--duration", "inf"), ("experiment", "--rate", "0"), ("experiment", "--tolerance", "nan"),
+    ("diagnose", "--gain", "nan"), ("models", "--height", "-1.7"), ("bench", "--seconds", "nan"),
+])
+def test_every_commands_numeric_options_are_finite_and_positive_or_exit_2(cli, args):
+    code, _, err = cli(*args)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "expected a finite number above zero" in err, err

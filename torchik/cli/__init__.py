@@ -40,7 +40,8 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
-    keep_freed_memory()
+    if getattr(args, "keep_freed_memory", True):
+        keep_freed_memory()
     previous = terminate_as_interrupt()
     try:
         return args.run(args)

@@ -11,6 +11,7 @@ import torch
 
 from ..method.models import MODELS
 from ..pipelines import bench
+from .common import positive
 
 
 def add_parser(subparsers) -> None:
@@ -28,7 +29,7 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
     parser.add_argument("--no-loops", action="store_true", help="skip the per-subject loops")
     parser.add_argument("--loop-steps", type=int, default=200, help="steps timed per loop (default 200)")
-    parser.add_argument("--seconds", type=float, default=2.0, help="time per batched measurement, at most (default 2)")
+    parser.add_argument("--seconds", type=positive, default=2.0, help="time per batched measurement, at most (default 2)")
     parser.add_argument("--max-steps", type=int, default=50, help="steps per batched measurement, at most (default 50)")
     parser.add_argument("--json", metavar="FILE", help="write the measurements here")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")

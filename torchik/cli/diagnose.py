@@ -16,7 +16,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..method.settings import TrackerSettings
-from .common import add_map_arguments, add_subject_argument, subject_from
+from .common import add_map_arguments, add_subject_argument, positive, subject_from
 
 EXAMPLES = """examples:
   torchik diagnose walk.npz --model human48 --report diag/
@@ -51,7 +51,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--report", required=True, metavar="DIR", help="the folder to write the report into")
     add_map_arguments(parser, "the model's links")
     add_subject_argument(parser)
-    parser.add_argument("--gain", type=float, default=TrackerSettings.position_gain,
+    parser.add_argument("--gain", type=positive, default=TrackerSettings.position_gain,
                         help=f"K of the tracker, 1/s (default {TrackerSettings.position_gain:g})")
     parser.add_argument("--max-effects", type=int, default=8, help="stop after adding this many effects (default 8)")
     parser.add_argument("--kinds", type=_kinds, default=KINDS, metavar="K1,K2",

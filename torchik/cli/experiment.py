@@ -9,7 +9,7 @@ from ..errors import InputError
 from ..method.models import MODELS
 from ..pipelines.experiment import OUTPUTS, PERSON, Settings, data_cases, run_paper, scenario_cases
 from ..synthetic.scenarios import SCENARIOS
-from .common import frame_argument
+from .common import frame_argument, positive
 
 
 def run(args: argparse.Namespace) -> int:
@@ -74,24 +74,24 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--models", nargs="+", choices=MODELS, default=list(MODELS), help="default: all three")
     parser.add_argument("--scenarios", nargs="+", choices=tuple(SCENARIOS), default=list(SCENARIOS),
                         help="built-in scenarios (default: all three)")
-    parser.add_argument("--duration", type=float, default=Settings.duration, help="scenario length, s (default 10)")
-    parser.add_argument("--rate", type=float, default=Settings.rate, help="scenario rate, Hz (default 100)")
+    parser.add_argument("--duration", type=positive, default=Settings.duration, help="scenario length, s (default 10)")
+    parser.add_argument("--rate", type=positive, default=Settings.rate, help="scenario rate, Hz (default 100)")
     parser.add_argument("--transient", type=float, default=Settings.transient,
                         help="seconds left out of the statistics (default 2, as the paper)")
-    parser.add_argument("--gain", type=float, default=Settings.gain,
+    parser.add_argument("--gain", type=positive, default=Settings.gain,
                         help=f"K of the dynamical method, 1/s (default {Settings.gain:g})")
     parser.add_argument("--backend", choices=("batched", "piqp"), default=Settings.backend,
                         help="QP backend of every method (default batched)")
-    parser.add_argument("--tolerance", type=float, default=Settings.tolerance,
+    parser.add_argument("--tolerance", type=positive, default=Settings.tolerance,
                         help="instantaneous IK: residual tolerance (default 1e-10)")
-    parser.add_argument("--step-tolerance", type=float, default=Settings.step_tolerance,
+    parser.add_argument("--step-tolerance", type=positive, default=Settings.step_tolerance,
                         help="instantaneous IK: stop when an increment is below this, rad (default 1e-6)")
     parser.add_argument("--max-iterations", type=int, default=Settings.max_iterations,
                         help="instantaneous IK: iteration cap (default 50)")
     parser.add_argument("--threads", type=int, default=Settings.threads, help="torch threads while timing (default 1)")
     parser.add_argument("--repeats", type=int, default=Settings.repeats,
                         help="runs of each method; a step counts with its fastest (default 2)")
-    parser.add_argument("--convergence-seconds", type=float, default=Settings.convergence_seconds,
+    parser.add_argument("--convergence-seconds", type=positive, default=Settings.convergence_seconds,
                         help="length of the convergence runs to a static T-pose, s (default 3)")
     parser.add_argument("--force", action="store_true", help="overwrite the outputs in --out")
     parser.add_argument("--quiet", action="store_true", help="no progress bar, no table on stdout")

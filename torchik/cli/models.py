@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..errors import InputError, MissingDependencyError
 from ..method.models import MODELS
-from .common import add_command
+from .common import add_command, positive
 from .track import EXAMPLES
 
 
@@ -26,8 +26,8 @@ def add_parser(subparsers) -> None:
                         help="show one model's joints and limits")
     models.add_argument("--write", metavar="DIR", help="write human66.urdf and human48.urdf into DIR")
     models.add_argument("--force", action="store_true", help="overwrite the URDFs in DIR if they exist")
-    models.add_argument("--height", type=float, help="subject height in metres (default 1.68, or the recording's)")
-    models.add_argument("--mass", type=float, help="subject mass in kg (default 62.2, or the recording's)")
+    models.add_argument("--height", type=positive, help="subject height in metres (default 1.68, or the recording's)")
+    models.add_argument("--mass", type=positive, help="subject mass in kg (default 62.2, or the recording's)")
     models.add_argument("--segment", type=_segment, action="append", metavar="NAME=METRES",
                         help="a measured segment length, e.g. RightUpperArm=0.31 (repeatable)")
     models.add_argument("--from", dest="recording", metavar="RECORDING",

@@ -12,7 +12,7 @@ from ..errors import InputError
 from ..method.limits import LimitSettings
 from ..method.settings import TrackerSettings
 from ..pipelines.retarget import LIMIT_TOLERANCE, retarget, save
-from .common import add_map_arguments, add_subject_argument, subject_from
+from .common import add_map_arguments, add_subject_argument, positive, subject_from
 
 
 def run(args: argparse.Namespace) -> int:
@@ -81,11 +81,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--out", required=True, metavar="NPZ", help="the iCub trajectories to write (.npz)")
     add_map_arguments(parser, "the human models' links")
     add_subject_argument(parser)
-    parser.add_argument("--rate", type=float, default=100.0,
+    parser.add_argument("--rate", type=positive, default=100.0,
                         help="output rate in Hz, 50 or more (default 100); the recording is resampled to it")
-    parser.add_argument("--gain", type=float, default=TrackerSettings.position_gain,
+    parser.add_argument("--gain", type=positive, default=TrackerSettings.position_gain,
                         help=f"K of the tracker, 1/s (default {TrackerSettings.position_gain:g})")
-    parser.add_argument("--max-rate", type=float, default=LimitSettings().max_rate,
+    parser.add_argument("--max-rate", type=positive, default=LimitSettings().max_rate,
                         help=f"the largest joint rate, rad/s (default {LimitSettings().max_rate:g}): set it to the "
                              f"robot's own")
     parser.add_argument("--force", action="store_true", help="overwrite the output if it exists")

@@ -96,7 +96,9 @@ def add_parser(subparsers) -> None:
                        "diagnostics over time; open it with `rerun FILE`")
     track.add_argument("--force", action="store_true", help="overwrite existing outputs")
     track.add_argument("--quiet", action="store_true", help="print nothing but errors (no progress bars)")
-    track.set_defaults(run=run)
+    # one recording's steps are small: keeping every freed block on the heap only fragments it (an
+    # hour's arrays and their temporaries then never return), which doubles the peak of a long run
+    track.set_defaults(run=run, keep_freed_memory=False)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import glob
 import json
 import os
 from contextlib import contextmanager
@@ -13,12 +14,32 @@ def replacing(path: str | Path):
     """Write to the temporary path this yields; it replaces `path` when the block completes. A write
     interrupted (Ctrl-C) or failed leaves the old file or none, never a truncated one."""
     path = Path(path)
+    _remove_orphans(path)
     part = path.with_name(f".{path.name}.{os.getpid()}.part")
     try:
         yield part
         os.replace(part, path)
     finally:
         part.unlink(missing_ok=True)
+
+
+def _remove_orphans(path: Path) -> None:
+    """Remove the `.part` files of `path` that processes no longer running left (killed by SIGKILL or
+    a power cut, they could not clean up)."""
+    for part in path.parent.glob(f".{glob.escape(path.name)}.*.part"):
+        pid = part.name[len(path.name) + 2:-len(".part")]
+        if pid.isdigit() and not _running(int(pid)):
+            part.unlink(missing_ok=True)
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)  # no signal sent: only whether the process exists
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's
+        return True
+    return True
 
 
 def write_json(report: dict, path: str | Path) -> Path:

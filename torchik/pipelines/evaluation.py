@@ -42,21 +42,26 @@ def link_motion(model: KinematicModel, trajectory: Trajectory, links, scheme: st
     over [t_{k-1}, t_k]; its estimate at t_k is the mean of the two steps around it. The paper's
     nu_k is meant at t_k and is taken as it is, as are velocities of any other source (None: the
     instantaneous methods' central differences)."""
+    parts = list(link_motion_chunks(model, trajectory, links, scheme, chunk))
+    return torch.cat([R for _, R, _ in parts]), torch.cat([w for _, _, w in parts])
+
+
+def link_motion_chunks(model: KinematicModel, trajectory: Trajectory, links, scheme: str | None = "midpoint",
+                       chunk: int = 4096) -> Iterator[tuple[slice, torch.Tensor, torch.Tensor]]:
+    """`link_motion` a few time steps at a time: (steps, rotations [t,B,L,3,3], angular velocities
+    [t,B,L,3]), so that a long trajectory's metrics need memory for one chunk of link motion only."""
     links = tuple(links)
     mask = model.select(links).ancestor_mask  # [L,n]
     velocity = trajectory.velocity  # [T,B,6+n]
     if scheme == "midpoint" and len(velocity) > 1:
         velocity = torch.cat((0.5 * (velocity[:-1] + velocity[1:]), velocity[-1:]))
     B, L = velocity.shape[1], len(links)
-    rotations, omegas = [], []
     with torch.inference_mode():
         for steps, m, p, R, s in time_chunks(model, trajectory, chunk):
             kin = m(p, R, s, links, jacobian=False, joint_axes=True)
             nu = velocity[steps].reshape(-1, velocity.shape[-1])
             omega = nu[:, None, 3:6] + mask @ (nu[:, 6:, None] * kin.joint_axes)
-            rotations.append(kin.rotation.view(-1, B, L, 3, 3))
-            omegas.append(omega.view(-1, B, L, 3))
-    return torch.cat(rotations), torch.cat(omegas)
+            yield steps, kin.rotation.view(-1, B, L, 3, 3), omega.view(-1, B, L, 3)
 
 
 def known_targets(sequence: TargetSequence, frames: int | None = None) -> torch.Tensor:
@@ -71,12 +76,15 @@ def tracking_errors(model: KinematicModel, trajectory: Trajectory, sequence: Tar
     """The paper's metrics of every subject at every sample: mnte [T,B] and rmse [T,B] (rad/s),
     estimate at t_k against the targets at t_k (`sequence` cut to the trajectory's length; scheme
     as `link_motion`'s). NaN where any target of the sample is missing."""
-    T = len(trajectory.time)
-    R_hat, w_hat = link_motion(model, trajectory, links, scheme)
+    T, B = trajectory.velocity.shape[:2]
     known = known_targets(sequence, T)
-    nan = torch.tensor(float("nan"), dtype=R_hat.dtype, device=R_hat.device)
-    return dict(mnte=torch.where(known, mnte(sequence.rotation[:T], R_hat), nan),
-                rmse=torch.where(known, angular_velocity_rmse(sequence.angular_velocity[:T], w_hat), nan))
+    out = {name: trajectory.velocity.new_full((T, B), float("nan")) for name in ("mnte", "rmse")}
+    for steps, R_hat, w_hat in link_motion_chunks(model, trajectory, links, scheme):  # a chunk at a time: bounded memory
+        ok = known[steps]
+        out["mnte"][steps] = torch.where(ok, mnte(sequence.rotation[steps], R_hat), out["mnte"][steps])
+        out["rmse"][steps] = torch.where(ok, angular_velocity_rmse(sequence.angular_velocity[steps], w_hat),
+                                         out["rmse"][steps])
+    return out
 
 
 def position_errors(model: KinematicModel, trajectory: Trajectory, sequence: TargetSequence, links,

@@ -43,8 +43,11 @@ class PiqpBackend(QPBackend):
                                          lb=lb[b], ub=ub[b])
             # the duality gap needs its own tolerances: at PIQP's defaults a solve can stop with a bound
             # held loosely and the step off by 1e-3 on these nearly singular Hessians
-            solution = self._qpsolvers.solve_problem(qp, solver="piqp", eps_abs=self.eps_abs, eps_rel=self.eps_rel,
-                                                     eps_duality_gap_abs=self.eps_abs, eps_duality_gap_rel=self.eps_rel)
+            # a failed solve's NaN duals make qpsolvers' arithmetic warn; the failure is caught below and counted
+            with np.errstate(invalid="ignore", over="ignore"):
+                solution = self._qpsolvers.solve_problem(qp, solver="piqp", eps_abs=self.eps_abs, eps_rel=self.eps_rel,
+                                                         eps_duality_gap_abs=self.eps_abs,
+                                                         eps_duality_gap_rel=self.eps_rel)
             if solution.found and solution.x is not None and np.all(np.isfinite(solution.x)):
                 x[b] = torch.tensor(solution.x, dtype=x.dtype, device=x.device)
             else:
