@@ -96,9 +96,9 @@ def test_existing_outputs_are_kept_without_force(tmp_path, capsys):
     (["--map", "bandai_to_human"], "--map applies to --data"),
     (["--duration", "0"], "positive"),
 ])
-def test_bad_input_is_refused_with_exit_code_2(tmp_path, capsys, extra, message):
-    assert main(["experiment", "paper", "--out", str(tmp_path / "out"), "--quiet", *extra]) == 2
-    assert message in capsys.readouterr().err
+def test_bad_input_is_refused_with_exit_code_2(tmp_path, cli, extra, message):
+    code, _, err = cli("experiment", "paper", "--out", tmp_path / "out", "--quiet", *extra)
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
 
 

@@ -149,4 +149,4 @@ def _peek(process) -> str:
 ])
 def test_every_commands_numeric_options_are_finite_and_positive_or_exit_2(cli, args):
     code, _, err = cli(*args)
-    assert code == 2 and len(err.strip().splitlines()) == 1 and "expected a finite number above zero" in err, err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "expected a positive, finite number" in err, err

@@ -101,7 +101,7 @@ def positive(text: str) -> float:
     """argparse type of a quantity that must be a finite number above zero (a rate, a gain, a length)."""
     value = float(text)  # ValueError: argparse says "invalid float value"
     if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a finite number above zero")
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive, finite number")
     return value
 
 
