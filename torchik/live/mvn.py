@@ -182,7 +182,7 @@ class Assembler:
     type the stream carries (learnt from its first frame), split datagrams joined. Duplicates,
     late (reordered) datagrams and malformed ones are counted in `stats` and dropped."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.stats = SourceStats()
         self._characters: dict[int, _Character] = {}
 

@@ -286,7 +286,8 @@ def _receive(source: Source, mailbox: Mailbox) -> None:
 class _Loop:
     """The tracking side: the batch of active characters, the tracker, the histories."""
 
-    def __init__(self, model, settings, selection_for, publisher, keep_targets, lsl_clock):
+    def __init__(self, model: KinematicModel, settings: TrackerSettings, selection_for, publisher: Publisher | None,
+                 keep_targets: bool, lsl_clock: bool):
         self.model, self.settings, self.selection_for = model, settings, selection_for
         self.lsl_clock = lsl_clock  # the source's time stamps are LSL's: carried over as they are
         self.publisher, self.keep_targets = publisher, keep_targets
