@@ -48,6 +48,14 @@ def test_a_ten_second_gap_starts_a_new_segment_and_the_outputs_are_finite(cli, t
     assert report["qp_fallbacks"] == 0 and report["failed_steps"] == 0
 
 
+def test_a_recording_with_nothing_measured_is_refused_in_one_line(cli, tmp_path, walk):
+    blind = dataclasses.replace(walk, orientation=np.full_like(walk.orientation, np.nan),
+                                angular_velocity=np.full_like(walk.angular_velocity, np.nan))
+    code, err, report, trajectory = tracked(cli, tmp_path, blind)
+    assert code == 2 and "nothing to track" in err and len(err.strip().splitlines()) == 1, err
+    assert report is None and not (tmp_path / "out.npz").exists()
+
+
 @pytest.mark.parametrize("field, index", [("angular_velocity", (slice(100, 110), 3)), ("base_position", slice(100, 110))])
 def test_absurd_finite_samples_are_dropped_as_missing_and_counted(cli, tmp_path, walk, field, index):
     values = getattr(walk, field).copy()

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import torch
 
+from ..errors import InputError
 from ..io.plausible import Plausibility, drop_implausible
 from ..io.recording import Recording
 from ..io.targets import recording_targets
@@ -34,6 +35,10 @@ def track_recording(model: KinematicModel, recording: Recording, links, settings
     links = tuple(links)
     recording, implausible = drop_implausible(recording, plausibility or Plausibility())
     sequence = recording_targets(recording, links, position_links, dtype=model.dtype, device=model.device)
+    if links and not bool(torch.isfinite(sequence.rotation).flatten(-2).all(-1).any()):
+        # the pose would only be integrated from the base's velocity: no figure of it could be checked
+        raise InputError(f"no orientation of the tracked links ({len(links)}) is measured in any of the "
+                         f"{len(recording.time)} frames (all missing, non-finite or implausible): nothing to track")
     settings = settings or TrackerSettings()
     dt = nominal_dt(recording, settings)
     settings = dataclasses.replace(settings, dt=dt)
