@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from torchik.cli import build_parser, main
+from torchik.cli import build_parser
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -19,23 +19,6 @@ REPO = Path(__file__).resolve().parents[1]
 def run(*args, cwd=None):
     return subprocess.run([sys.executable, "-m", "torchik", *args], capture_output=True, text=True, timeout=120,
                           cwd=cwd)
-
-
-@pytest.fixture
-def cli(monkeypatch, capsys):
-    """`torchik ARGS` in this process: (exit code, stdout, stderr). Faster than a subprocess; the
-    allocator tuning of the command line is left out (it would stay with pytest's process)."""
-    monkeypatch.setattr("torchik.pipelines.memory.keep_freed_memory", lambda: True)
-
-    def call(*args):
-        try:
-            code = main([str(a) for a in args])
-        except SystemExit as exc:  # argparse: --help and usage errors
-            code = exc.code
-        out, err = capsys.readouterr()
-        return code, out, err
-
-    return call
 
 
 def test_models_lists_the_three_models():
