@@ -80,11 +80,12 @@ def test_steps_failed_beyond_max_failed_exit_1_and_leave_existing_outputs(cli, t
 @pytest.mark.parametrize("options", [
     ("--gain", "-5"), ("--gain", "nan"), ("--gain", "300"), ("--position-gain", "0"), ("--orientation-gain", "inf"),
     ("--rate", "nan"), ("--duration", "nan"), ("--duration", "inf"), ("--rate", "-100"), ("--device", "mps"),
-    ("--device", "tpu"), ("--max-gap", "nan"), ("--max-failed", "2"), ("--max-angular-velocity", "0"),
+    ("--device", "tpu"), ("--max-gap", "nan"), ("--max-gap", "0.5"), ("--max-failed", "2"), ("--max-angular-velocity", "0"),
 ])
 def test_bad_numeric_options_and_devices_exit_2_with_one_line_before_any_work(cli, tmp_path, options):
     code, out, err = cli("track", "--duration", "0.2", "--quiet", "--report", tmp_path / "r.json", *options)
     assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert options[0].lstrip("-") in err  # the option as the user knows it, not the library's setting name
     assert not (tmp_path / "r.json").exists()
 
 

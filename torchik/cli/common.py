@@ -105,6 +105,14 @@ def positive(text: str) -> float:
     return value
 
 
+def more_than_one(text: str) -> float:
+    """argparse type of a count of frame intervals that must exceed one (a gap of one interval is no gap)."""
+    value = positive(text)
+    if value <= 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected more than 1 frame interval")
+    return value
+
+
 def fraction(text: str) -> float:
     """argparse type of a fraction, a finite number from 0 to 1."""
     value = float(text)
@@ -113,7 +121,8 @@ def fraction(text: str) -> float:
     return value
 
 
-positive.__name__ = fraction.__name__ = "float"  # what argparse names in "invalid float value: 'fast'"
+# what argparse names in "invalid float value: 'fast'"
+positive.__name__ = more_than_one.__name__ = fraction.__name__ = "float"
 
 
 def torch_device(text: str):

@@ -25,6 +25,7 @@ from .common import (
     check_outputs,
     fraction,
     model_urdf,
+    more_than_one,
     positive,
     subject_from,
     torch_device,
@@ -77,7 +78,7 @@ def add_parser(subparsers) -> None:
     track.add_argument("--scheme", default=TrackerSettings.scheme, choices=tuple(SCHEMES))
     track.add_argument("--backend", default=TrackerSettings.backend, choices=("auto", *BACKENDS),
                        help="QP solver: PIQP per subject, batched in torch, or auto (batched for batches, default)")
-    track.add_argument("--max-gap", type=positive, default=TrackerSettings.max_gap, metavar="STEPS",
+    track.add_argument("--max-gap", type=more_than_one, default=TrackerSettings.max_gap, metavar="STEPS",
                        help="a gap in time longer than this many frame intervals starts a new segment: the tracker "
                             f"restarts from the targets after it (default {TrackerSettings.max_gap:g})")
     track.add_argument("--max-failed", type=fraction, default=MAX_FAILED, metavar="FRACTION",
