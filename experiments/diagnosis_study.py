@@ -277,8 +277,8 @@ def judge(injected: list[Injected], effects) -> dict:
             hit = [k for k, e in enumerate(effects) if e.kind in inj.kinds() and e.target == target]
             found_all &= bool(hit)
             matched.update(hit)
-            sizes += [dict(family=inj.family, target=target, injected=float(size), found=float(SIZE[effects[k].kind](effects[k].params)))
-                      for k in hit[:1]]
+            sizes += [dict(family=inj.family, target=target, injected=float(size),
+                           found=float(SIZE[effects[k].kind](effects[k].params))) for k in hit[:1]]
         # a device's delay found on single gyros: the right cause, not spurious, not named as one
         matched.update(k for k, e in enumerate(effects) if inj.family == "stream_delay" and e.kind == "stream_delay")
         named.append(found_all)
