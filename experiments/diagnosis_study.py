@@ -71,9 +71,11 @@ class Body:
         self.vindex = [self.model.joints[self.model.getJointId(n)].idx_v for n in moving]
         lo = self.model.lowerPositionLimit[self.index]
         hi = self.model.upperPositionLimit[self.index]
-        half = np.minimum(0.5 * (hi - lo) - 0.05, 0.8)  # rad: within the limits, at most a wide swing
+        # a posture about the T-pose (zero), swinging by at most 0.6 rad, within the limits: far from
+        # zero, a shoulder with a 3-rad range puts the tracker's start on another branch of its IK
+        half = np.minimum(0.5 * (hi - lo) - 0.05, 0.6)
         amplitude = half * rng.uniform(0.3, 1.0, len(moving))
-        self.centre = rng.uniform(lo + 0.05 + amplitude, hi - 0.05 - amplitude)
+        self.centre = np.clip(rng.uniform(-0.25, 0.25, len(moving)), lo + 0.05 + amplitude, hi - 0.05 - amplitude)
         self.amp = amplitude[:, None] * rng.dirichlet(np.ones(3), len(moving))  # [n,3]: sums to the amplitude
         self.freq = 2 * math.pi * rng.uniform(0.1, 1.2, (len(moving), 3))
         self.phase = rng.uniform(0, 2 * math.pi, (len(moving), 3))
