@@ -30,7 +30,7 @@ import torch
 
 from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.diagnosis.calibration import apply_calibration
-from torchik.pipelines.diagnosis.effect import GUARD, halves
+from torchik.pipelines.diagnosis.effect import GUARD, blocks, halves, lowpass_blocks
 from torchik.pipelines.diagnosis.gyro import GyroBias, GyroScale, StreamDelay
 from torchik.pipelines.diagnosis.joints import JointLimit, MissingDof
 from torchik.pipelines.diagnosis.loop import diagnose, errors
@@ -269,3 +269,23 @@ def test_train_and_test_halves_are_a_guard_apart(rate, duration):
     assert float(gap) >= expected - 1e-9
     train0, test0 = halves(time, guard=0.0)
     assert bool((train0 | test0)[time >= time[0] + start].all()) and not bool((train0 & test0).any())
+
+
+@pytest.mark.parametrize("guard", [None, 0.0])
+def test_the_fits_low_pass_never_carries_a_test_sample_into_a_train_value(guard):
+    """lowpass_blocks filters each run of train or test samples on its own: changing every test
+    sample leaves every filtered train value as it was (and the reverse), with or without the guard;
+    every sample belongs to a run, and the runs alternate train and test."""
+    time = torch.arange(0.0, 12.0, 0.02, dtype=torch.float64)
+    train, test = halves(time, guard=guard)
+    x = torch.randn(len(time), 4, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    base = lowpass_blocks(x, time, 5.0, train, test)
+    for side, other in ((train, test), (test, train)):
+        moved = lowpass_blocks(torch.where(other[:, None, None], x + 10.0 * torch.randn_like(x), x), time, 5.0, train, test)
+        assert torch.equal(moved[side], base[side])
+        assert not torch.allclose(moved[other], base[other])
+    label = blocks(train, test)
+    assert bool((torch.diff(label) >= 0).all()) and int(label.max()) >= 9
+    for run in range(int(label.max()) + 1):
+        inside = label == run
+        assert not (bool((inside & train).any()) and bool((inside & test).any()))

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from ...io.recording import Recording
-from .analysis import autocorrelation_time
+from .analysis import autocorrelation_time, lowpass
 
 SIGNIFICANT = 10.0
 
@@ -74,7 +74,7 @@ def combine(*scores: tuple[Score, float]) -> Score:
                  sum(s.n for s, _ in scores))
 
 
-GUARD = 0.2  # s: the fits low-pass at up to 5 Hz, whose response's main lobe spans about 1/5 s
+GUARD = 0.2  # s: the delay fits look 0.1 s either way; the tracker smooths over 1 / K, 0.05 s at its default
 
 
 def halves(time: torch.Tensor, block: float = 1.0, transient: float = 1.0, guard: float | None = None
@@ -85,11 +85,12 @@ def halves(time: torch.Tensor, block: float = 1.0, transient: float = 1.0, guard
     (none when the recording is shorter than three times that); a recording shorter than one and
     a half blocks alternates quarters instead.
 
-    Samples within guard / 2 of a block's edge are in neither half: the fits low-pass the whole
-    series, and without the gap a test sample's filtered value would hold the noise of the
-    training samples beside it (and the reverse), which makes the held-out score optimistic. The
-    default guard is the filter's span, 1 / cutoff with the fits' cutoff min(5 Hz, rate / 4), and
-    at most half a block; guard = 0 gives every sample a half."""
+    Samples within guard / 2 of a block's edge are in neither half. The fits low-pass within each
+    block (lowpass_blocks), but the residual itself is the tracker's output, which smooths the
+    measurements over about 1 / K (0.05 s at the default K = 20 / s), and the delay fits look up to 0.1 s
+    away: without the gap a test sample would hold the noise of the training samples beside it (and
+    the reverse), which makes the held-out score optimistic. The default guard is 0.2 s (at least
+    four samples), at most half a block; guard = 0 gives every sample a half."""
     if guard is None:
         guard = max(GUARD, 4.0 * float(torch.diff(time).median())) if len(time) > 1 else 0.0
     start = float(time[0]) + (transient if float(time[-1] - time[0]) > 3 * transient else 0.0)
@@ -102,6 +103,35 @@ def halves(time: torch.Tensor, block: float = 1.0, transient: float = 1.0, guard
     margin = min(0.5 * guard / block, 0.25)
     inside = (time >= start) & (phase >= margin) & (phase < 1.0 - margin)
     return (index % 2 == 0) & inside, (index % 2 == 1) & inside
+
+
+def blocks(train: torch.Tensor, test: torch.Tensor) -> torch.Tensor:
+    """[T] the run of halves() each sample belongs to: runs of train or test samples numbered in
+    time, and every sample in neither half (a guard, the transient) given to the nearest run."""
+    side = torch.where(train, 1, torch.where(test, 2, 0))
+    marked = torch.nonzero(side > 0)[:, 0]
+    if len(marked) == 0:
+        return torch.zeros_like(side)
+    run = torch.cat((torch.zeros(1, dtype=torch.long), torch.cumsum(side[marked][1:] != side[marked][:-1], 0)))
+    after = torch.searchsorted(marked, torch.arange(len(side))).clamp(max=len(marked) - 1)
+    before = (after - 1).clamp(min=0)
+    t = torch.arange(len(side))
+    nearest = torch.where((t - marked[before]).abs() <= (marked[after] - t).abs(), before, after)
+    return run[nearest]
+
+
+def lowpass_blocks(x: torch.Tensor, time: torch.Tensor, cutoff: float, train: torch.Tensor,
+                   test: torch.Tensor) -> torch.Tensor:
+    """lowpass (analysis.py) of x [T,...] within each run of blocks(train, test) on its own, so that
+    no filtered train value holds a test sample and no filtered test value a train sample: filtered
+    over the whole series, a test sample's value near a block edge would carry the noise of the
+    training samples beside it (the filter's response beyond the 0.2 s guard still holds 2-3 % of
+    its energy) and the held-out score would be optimistic."""
+    label = blocks(train, test)
+    edges = torch.nonzero(torch.diff(label))[:, 0] + 1
+    starts = [0] + edges.tolist()
+    ends = edges.tolist() + [len(label)]
+    return torch.cat([lowpass(x[a:b], time[a:b], cutoff) for a, b in zip(starts, ends)])
 
 
 @dataclass

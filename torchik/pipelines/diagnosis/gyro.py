@@ -19,8 +19,8 @@ import numpy as np
 import torch
 
 from ...io.recording import Recording
-from .analysis import Analysis, lowpass, simpson
-from .effect import Effect, replace, score, shift
+from .analysis import Analysis, simpson
+from .effect import Effect, lowpass_blocks, replace, score, shift
 from .placement import MAX_DELAY
 
 MAX_SCALE = 0.1  # a gyro whose scale is off by more than this is broken, not miscalibrated
@@ -112,7 +112,7 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
     cutoff = min(cutoff, 0.25 / dt)
     eye = torch.eye(3, dtype=time.dtype)
     ok = analysis.valid[:, b]  # [T,L]
-    low = lambda x: lowpass(x, time, cutoff)  # noqa: E731  (column by column: all links at once)
+    low = lambda x: lowpass_blocks(x, time, cutoff, train, test)  # noqa: E731  (all links at once)
     e_low = low(analysis.e[:, b])
     R_low = low(torch.where(ok[..., None, None], analysis.R_m[:, b], eye))
     w_lows = low(simpson(torch.where(ok[..., None], analysis.w_m[:, b], 0.0)))

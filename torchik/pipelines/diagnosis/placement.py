@@ -24,8 +24,8 @@ import numpy as np
 import torch
 
 from ...method import so3
-from .analysis import Analysis, lowpass
-from .effect import Effect, Score, combine, replace, rotation_about, score, shift
+from .analysis import Analysis
+from .effect import Effect, Score, combine, lowpass_blocks, replace, rotation_about, score, shift
 
 MAX_DELAY = 0.25  # s: a sensor later than this on the others is no delay but a different recording
 MAX_DRIFT = 5.0  # deg/s: heading drift of inertial sensors is a fraction of this
@@ -200,7 +200,7 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
     w_hat = analysis.w_hat[k, b][:, usable].transpose(0, 1)  # [N,S,3]
     misalignments = fit_linear(analysis, b, usable, R_hat, tr, te)
     delays = fit_linear(analysis, b, usable, -w_hat[..., None], tr, te)
-    drifts = _drift(analysis, b, usable, tr, te, derived)
+    drifts = _drift(analysis, b, usable, tr, te, derived, train, test)
     out: list[Effect] = []
     for i, mis, delay, head in zip(usable, misalignments, delays, drifts):
         name = analysis.links[i]
@@ -225,13 +225,14 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
 
 
 def _drift(analysis: Analysis, b: int, usable: list[int], tr: torch.Tensor, te: torch.Tensor,
-           derived: torch.Tensor) -> list[LinearFit]:
+           derived: torch.Tensor, train: torch.Tensor, test: torch.Tensor) -> list[LinearFit]:
     """Heading-drift fits of the links `usable`: G = (t - t0) z on the orientation channel and, where
-    the link has a gyro, its disagreement with the orientations e_z = -rate, fitted together."""
+    the link has a gyro, its disagreement with the orientations e_z = -rate, fitted together (e_z
+    low-passed within the blocks of train and test)."""
     k, time = analysis.sample, analysis.time
     z = torch.tensor([0.0, 0.0, 1.0], dtype=time.dtype)
     drift = ((time[k] - time[0])[:, None] * z)[..., None]  # [S,3,1]
-    e_z = lowpass(analysis.e[:, b, :, 2], time, min(5.0, 0.25 / float(torch.diff(time).median())))
+    e_z = lowpass_blocks(analysis.e[:, b, :, 2], time, min(5.0, 0.25 / float(torch.diff(time).median())), train, test)
     gyro = [n for n, i in enumerate(usable) if not bool(derived[i])]
     none = [n for n, i in enumerate(usable) if bool(derived[i])]
     extra = []

@@ -18,8 +18,8 @@ import numpy as np
 import torch
 
 from ...method import so3
-from .analysis import Analysis, lowpass, simpson
-from .effect import Effect, replace, score
+from .analysis import Analysis, simpson
+from .effect import Effect, lowpass_blocks, replace, score
 
 
 @dataclass
@@ -56,7 +56,7 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, cut
     if int(tr.sum()) < 8 or int(te.sum()) < 8:
         return []
     cutoff = min(cutoff, 0.25 / float(torch.diff(time).median()))
-    low = lambda x: lowpass(x, time, cutoff)  # noqa: E731
+    low = lambda x: lowpass_blocks(x, time, cutoff, train, test)  # noqa: E731
     R = torch.where(ok[:, None, None], analysis.R_m[:, b, i], torch.eye(3, dtype=time.dtype))
     w = simpson(torch.where(ok[:, None], analysis.w_m[:, b, i], 0.0))
     X = low(-so3.hat(w) @ R)
