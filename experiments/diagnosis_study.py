@@ -69,8 +69,10 @@ class Body:
         self.frames = [self.model.getFrameId(name) for name in links]
         self.index = [self.model.joints[self.model.getJointId(n)].idx_q for n in moving]
         self.vindex = [self.model.joints[self.model.getJointId(n)].idx_v for n in moving]
-        lo = self.model.lowerPositionLimit[self.index]
-        hi = self.model.upperPositionLimit[self.index]
+        # the limits of Human48, the diagnosed model (Human66's are +-10 rad: none)
+        limits = pinocchio.buildModelFromUrdf(str(REFERENCE).format(dof=48))
+        lo = np.array([limits.lowerPositionLimit[limits.joints[limits.getJointId(n)].idx_q] for n in moving])
+        hi = np.array([limits.upperPositionLimit[limits.joints[limits.getJointId(n)].idx_q] for n in moving])
         # a posture about the T-pose (zero), swinging by at most 0.6 rad, within the limits: far from
         # zero, a shoulder with a 3-rad range puts the tracker's start on another branch of its IK
         half = np.minimum(0.5 * (hi - lo) - 0.05, 0.6)
