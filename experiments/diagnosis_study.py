@@ -305,7 +305,7 @@ def run_case(case: Case, model, urdf: str, links, args) -> dict:
                 injected=[dict(family=i.family, targets=i.targets, sizes=[float(x) for x in i.sizes], unit=i.unit)
                           for i in injected],
                 kept=[e.summary() for e in d.effects], rejected=[f"{e.kind} at {e.target}: {e.notes}" for e in d.rejected],
-                complete=d.complete, stop=getattr(d, "stop", None),
+                complete=d.complete, stop=d.stop, noise_share=d.noise.share if d.noise else None,
                 mnte_before=d.before.overall["mnte"], mnte_after=d.after.overall["mnte"], mnte_clean=reference, **verdict)
 
 

@@ -46,6 +46,27 @@ class Score:
     sigma2: float
     tau: float
     n: int
+    chunks: tuple[float, ...] = ()  # the explained part, in noise units, on CHUNKS stretches of the test time
+
+    @property
+    def consistency(self) -> float:
+        """t statistic of the explained part across the stretches of test time (mean over its standard
+        error): an effect explains the residual all along, a slow wander of the noise only here and there."""
+        return consistency(self.chunks)
+
+
+CHUNKS = 8  # stretches of the test time on which the explained part is compared
+CONSISTENT = 3.0  # t above which the stretches agree: noise's best reach 1.8, true drifts 3.6 and more (diagnosis_study.py)
+ABOVE_NOISE = 3.0  # an effect fitted sample by sample must move its angle this many times the noise's rms
+
+
+def consistency(chunks) -> float:
+    g = np.asarray(chunks, dtype=np.float64)
+    if len(g) < 3:
+        return math.inf
+    spread = float(g.std(ddof=1))
+    mean = float(g.mean())
+    return mean / (spread / math.sqrt(len(g))) if spread > 0 else (math.inf if mean > 0 else -math.inf)
 
 
 def score(y: torch.Tensor, leftover: torch.Tensor, k: float, per_sample: int = 0) -> Score:
@@ -60,7 +81,10 @@ def score(y: torch.Tensor, leftover: torch.Tensor, k: float, per_sample: int = 0
     sigma2 = max(rss1 / (n_t * d), 1e-30)
     n_eff = n_t * d / tau
     penalty = (k + per_sample / tau) * math.log(max(n_eff, 2.0))
-    return Score((rss0 - rss1) / (sigma2 * tau) - penalty, (rss0 - rss1) / max(rss0, 1e-30), sigma2, tau, n_t * d)
+    chunks = tuple(float(a.square().sum() - b.square().sum()) / (sigma2 * tau)
+                   for a, b in zip(y.tensor_split(min(CHUNKS, n_t)), leftover.tensor_split(min(CHUNKS, n_t))))
+    return Score((rss0 - rss1) / (sigma2 * tau) - penalty, (rss0 - rss1) / max(rss0, 1e-30), sigma2, tau, n_t * d,
+                 chunks)
 
 
 def combine(*scores: tuple[Score, float]) -> Score:
@@ -70,8 +94,9 @@ def combine(*scores: tuple[Score, float]) -> Score:
     total = sum(s.score for s, _ in scores)
     n_eff = sum(s.n / s.tau for s, _ in scores)
     explained = sum(s.explained for s, _ in scores) / len(scores)
+    chunks = tuple(sum(c) for c in zip(*(s.chunks for s, _ in scores)))
     return Score(total - k * math.log(max(n_eff, 2.0)), explained, scores[0][0].sigma2, scores[0][0].tau,
-                 sum(s.n for s, _ in scores))
+                 sum(s.n for s, _ in scores), chunks)
 
 
 GUARD = 0.2  # s: the delay fits look 0.1 s either way; the tracker smooths over 1 / K, 0.05 s at its default
@@ -151,9 +176,33 @@ class Effect:
     additive: ClassVar[tuple[str, ...]] = ()  # the parameters that compose by addition (refine)
     error = "mnte"  # the overall error it must lower to be kept (Errors.overall's key)
 
+    per_sample = False  # a value fitted at every sample (a joint angle): it explains noise on its test samples too
+
     @property
     def score(self) -> float:
         return self.fit.score if self.fit is not None else -math.inf
+
+    def significant(self, threshold: float, noise_rms: float) -> str:
+        """Why the fit is not significant ("" when it is): its held-out score below `threshold`; or,
+        for a fixed set of parameters, test stretches that disagree (see Score.consistency), for an
+        effect fitted sample by sample, an angle within ABOVE_NOISE times the noise's rms (rad, per
+        axis: what a correct model leaves, analysis.noise_floor): what it explains on its test
+        samples is theirs, and only its size tells it from the noise along its axis."""
+        if self.score <= threshold:
+            return f"score {self.score:.1f}, not above {threshold:g}"
+        if self.per_sample:
+            size = self.angle_rms()
+            return "" if size > ABOVE_NOISE * noise_rms else (
+                f"its angle's rms {math.degrees(size):.2f} deg is within {ABOVE_NOISE:g} times the noise's "
+                f"{math.degrees(noise_rms):.2f} deg")
+        assert self.fit is not None
+        t = self.fit.consistency
+        return "" if t > CONSISTENT else (f"explains the residual in some stretches of time and not in others (t = "
+                                          f"{t:.1f}, not above {CONSISTENT:g}): the noise's slow wander")
+
+    def angle_rms(self) -> float:
+        """The rms (rad) of what a per-sample effect moves (per_sample effects define it)."""
+        return math.inf
 
     def overlaps(self, other: "Effect") -> bool:
         """Whether the two would correct the same thing (same kind, same target or one of them on all)."""

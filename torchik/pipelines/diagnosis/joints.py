@@ -115,9 +115,12 @@ class MissingDof(Effect):
     """A revolute axis params['axis'] [3] (unit, in the frame of `params['parent']`, orthogonal to
     the joint's own axes at zero) missing at the joint `target` (the chain from params['parent'] to
     params['child']); params['first_joint'] is the joint it is inserted before,
-    params['angle_range'] the range of the fitted angle (rad)."""
+    params['angle_range'] the range of the fitted angle and params['angle_rms'] its rms about its mean (rad)."""
 
-    model_effect = True
+    model_effect, per_sample = True, True
+
+    def angle_rms(self) -> float:
+        return float(self.params.get("angle_rms", math.inf))
 
     def joint_name(self) -> str:
         return f"{self.target}_added"
@@ -156,7 +159,10 @@ class JointLimit(Effect):
     """Joint `target`'s params['side'] limit params['limit'] (rad, the model's) is narrower than
     the motion, which needs params['needed'] (rad)."""
 
-    model_effect = True
+    model_effect, per_sample = True, True
+
+    def angle_rms(self) -> float:
+        return abs(self.params["needed"] - self.params["limit"])
 
     def augment(self, urdf: str) -> str:
         root = ET.fromstring(urdf)
@@ -250,7 +256,8 @@ def _missing(analysis, b, train, test, urdf, target=None) -> list[Effect]:
         sd = math.sqrt(fit.sigma2 * fit.tau / max(gap, 1e-30))
         out.append(MissingDof("missing_dof", _stem(group), dict(
             axis=a.tolist(), parent=group.parent, child=group.child, first_joint=group.first_joint,
-            angle_range=[float(theta[tr | te].min()), float(theta[tr | te].max())]),
+            angle_range=[float(theta[tr | te].min()), float(theta[tr | te].max())],
+            angle_rms=float(theta[tr | te].std())),
             dict(axis_rad=sd), 2, fit))
     return out
 

@@ -113,15 +113,20 @@ def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]
         lines += ["", "## Significant but not kept", ""]
         lines += [f"- {e.kind} at {e.target} (score {e.score:.0f}): {e.notes}" for e in d.rejected]
     lines += ["", "## What remains", ""]
+    lines.append(f"Why the loop stopped: {d.why_stopped}.")
     if not d.complete:
         rounds = len(d.steps) + sum("reverted" in e.notes for e in d.rejected)
-        lines.append(f"The loop stopped at its limit of effects ({rounds} "
-                     f"rounds) while candidates were still significant: run it again with more (--max-effects) to go on.")
+        lines.append(f"It stopped at its limit of effects ({rounds} rounds): run it again with more (--max-effects) "
+                     f"to go on.")
     elif d.best_rejected is not None:
         lines.append(f"The best candidate left, {d.best_rejected.summary()}, scores {d.best_rejected.score:.1f} "
-                     f"(significant above {SIGNIFICANT:g}): no candidate explains what remains.")
-    else:
-        lines.append("No candidate is left to explain what remains.")
+                     f"(significant above {SIGNIFICANT:g}, with test stretches that agree"
+                     f"{'' if not d.best_rejected.notes else '; ' + d.best_rejected.notes}).")
+    if d.noise is not None:
+        lines.append(f"What a correct model leaves, estimated on the data: {math.degrees(d.noise.axis_rms):.2f} deg rms "
+                     f"along an axis the joints do not follow; a link's residual power at the noise is "
+                     f"{d.noise.noise_power:.3g} (median over the links), which accounts for "
+                     f"{100 * d.noise.share:.0f} % of the residual left.")
     if d.unobservable:
         lines += ["", "Not identifiable from these data (no fit was possible):", ""]
         groups: dict[tuple[str, str], list[str]] = {}
@@ -191,7 +196,9 @@ def write(d: Diagnosis, out: str | Path, source: str, model_name: str, rrd: bool
                    before=d.before.to_json(), after=d.after.to_json(),
                    best_rejected=None if d.best_rejected is None else d.best_rejected.to_json(),
                    rejected=[e.to_json() for e in d.rejected], unobservable=[e.to_json() for e in d.unobservable],
-                   remaining=d.remaining, limits=d.limits, complete=d.complete)
+                   remaining=d.remaining, limits=d.limits, complete=d.complete, stop=d.stop, why_stopped=d.why_stopped,
+                   noise=None if d.noise is None else dict(axis_rms_rad=d.noise.axis_rms, power=d.noise.noise_power,
+                                                           share=d.noise.share))
     paths["json"] = out / "diagnosis.json"
     paths["json"].write_text(json.dumps(summary, indent=2, default=float) + "\n")
     md = markdown(d, source, model_name, {"errors per link": "errors.png", "residual over time": "residual.png"})
