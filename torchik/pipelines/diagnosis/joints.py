@@ -32,6 +32,7 @@ from .effect import Effect, score
 
 REGULARISE = 0.05
 MAX_WIDENING = math.pi / 2  # rad: a limit this far from the motion is no limit too narrow but another error
+MAX_RANGE = math.pi  # rad: no joint of a body moves over more than this about one axis
 LEVERAGE = 1e-3  # a subtree the joints follow to within this share about every axis has no axis missing
 
 
@@ -147,6 +148,12 @@ class MissingDof(Effect):
         root.insert(children.index(joint) + 1, new)
         return ET.tostring(root, encoding="unicode")
 
+    def implausible(self):
+        lo, hi = self.params["angle_range"]
+        return (f"an axis moving over {math.degrees(hi - lo):.0f} deg, beyond the {math.degrees(MAX_RANGE):.0f} deg of "
+                f"any joint of a body: a sign of a segment frame flipped or swapped, or of a mislabelled marker"
+                if hi - lo > MAX_RANGE else "")
+
     def summary(self):
         a = np.asarray(self.params["axis"])
         lo, hi = self.params["angle_range"]
@@ -180,7 +187,8 @@ class JointLimit(Effect):
         needed, limit = self.params["needed"], self.params["limit"]
         if abs(needed) > math.pi or abs(needed - limit) > MAX_WIDENING:
             return (f"a range to {math.degrees(needed):.0f} deg from a limit of {math.degrees(limit):.0f} deg: no joint "
-                    f"limit is that far off (more than {math.degrees(MAX_WIDENING):.0f} deg, or beyond 180 deg)")
+                    f"limit is that far off (more than {math.degrees(MAX_WIDENING):.0f} deg, or beyond 180 deg): a sign of "
+                    f"a static pose that is not the assumed one, or of a segment frame flipped")
         return ""
 
     def summary(self):

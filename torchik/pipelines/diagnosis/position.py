@@ -21,6 +21,8 @@ from ...method import so3
 from .analysis import Analysis, simpson
 from .effect import Effect, lowpass_blocks, replace, score
 
+MAX_OFFSET = 0.3  # m: a point on the pelvis is within this of its origin
+
 
 @dataclass
 class PositionOffset(Effect):
@@ -33,6 +35,11 @@ class PositionOffset(Effect):
         R = recording.orientation[:, recording.links.index(recording.base_link)]
         p = recording.base_position + sign * (R @ np.asarray(self.params["offset"]))
         return replace(recording, base_position=p)
+
+    def implausible(self):
+        size = float(np.linalg.norm(self.params["offset"]))
+        return (f"a position {100 * size:.0f} cm from the link's origin, beyond the {100 * MAX_OFFSET:.0f} cm of a "
+                f"segment: a sign of a position of another segment, or in other units" if size > MAX_OFFSET else "")
 
     def summary(self):
         o = np.asarray(self.params["offset"])

@@ -82,7 +82,7 @@ def _fmt(x: float) -> str:
 
 def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]) -> str:
     before, after = d.before.overall, d.after.overall
-    lines = [f"# Diagnosis of {source}", "", f"Model: {model_name}; {len(d.links)} tracked links; "
+    lines = [f"# Diagnosis of {source}", "", *answer(d), "", f"Model: {model_name}; {len(d.links)} tracked links; "
              f"{len(d.original.time)} frames at {d.original.frame_rate:.1f} Hz.", ""]
     if d.effects:
         lines += ["## Effects found (in the order added)", "",
@@ -109,9 +109,14 @@ def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]
     for i, link in enumerate(d.links):
         lines.append(f"| {link} | {_fmt(d.before.mnte[i])} → {_fmt(d.after.mnte[i])} | "
                      f"{_fmt(d.before.rmse[i])} → {_fmt(d.after.rmse[i])} |")
-    if d.rejected:
+    implausible = [e for e in d.rejected if "implausible:" in e.notes]
+    if implausible:
+        lines += ["", "## Refused as implausible: a sign of another error", ""]
+        lines += [f"- {e.summary()} (score {e.score:.0f}): {e.notes}" for e in implausible]
+    reverted = [e for e in d.rejected if "implausible:" not in e.notes]
+    if reverted:
         lines += ["", "## Significant but not kept", ""]
-        lines += [f"- {e.kind} at {e.target} (score {e.score:.0f}): {e.notes}" for e in d.rejected]
+        lines += [f"- {e.kind} at {e.target} (score {e.score:.0f}): {e.notes}" for e in reverted]
     lines += ["", "## What remains", ""]
     lines.append(f"Why the loop stopped: {d.why_stopped}.")
     if not d.complete:
@@ -147,6 +152,25 @@ def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]
         lines += ["", "Joints at a limit: " + ", ".join(at_limit)]
     lines += [""] + [f"![{name}]({path})" for name, path in figures.items()] + [""]
     return "\n".join(lines)
+
+
+def answer(d: Diagnosis) -> list[str]:
+    """The report's first lines: the effects kept, each with its evidence in one sentence; what was
+    refused as implausible and the error it points to; why the loop stopped."""
+    if d.steps:
+        lines = ["**Found:**", ""]
+        for step in d.steps:
+            e = step.effect
+            share = "" if e.fit is None else f", explaining {100 * e.fit.explained:.0f} % of its channel's held-out residual"
+            lines.append(f"- {e.summary()}: held-out score {e.score:.0f}{share}; MNTE "
+                         f"{_fmt(step.before.overall['mnte'])} → {_fmt(step.after.overall['mnte'])}.")
+    else:
+        lines = ["**Found: nothing** the data tell from the noise."]
+    refused = [e for e in d.rejected if "implausible:" in e.notes]
+    if refused:
+        lines += ["", "**Refused as implausible** (not adopted; each points to another error):", ""]
+        lines += [f"- {e.summary()}: {e.notes.split('implausible: ', 1)[1]}" for e in refused]
+    return lines + ["", f"**Why the loop stopped:** {d.why_stopped}."]
 
 
 def _json(value, digits: int = 4) -> str:
