@@ -311,7 +311,7 @@ def run_case(case: Case, model, urdf: str, links, args) -> dict:
 
 def cases(args) -> list[Case]:
     rng = np.random.default_rng(args.seed)
-    out = [Case(args.seed * 10000 + 100 * f + s, (family,), NOISES[s % len(NOISES)])
+    out = [Case(args.seed * 10000 + 100 * f + s, (family,), NOISES[(f + s) % len(NOISES)])
            for f, family in enumerate(args.families) for s in range(args.seeds)]
     for k in range(args.pairs):
         pair = tuple(str(x) for x in rng.choice(args.families, 2, replace=False))
