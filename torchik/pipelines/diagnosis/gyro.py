@@ -24,7 +24,7 @@ from .effect import Effect, lowpass_blocks, replace, score, shift
 from .placement import MAX_DELAY
 
 MAX_SCALE = 0.1  # a gyro whose scale is off by more than this is broken, not miscalibrated
-MAX_BIAS = 10.0  # deg/s: a consumer MEMS gyro's zero-rate offset, uncalibrated, stays within this; beyond, a unit or axis error
+MAX_BIAS = 10.0  # deg/s: an uncalibrated MEMS gyro's zero-rate offset stays within this; beyond, a unit or axis error
 
 
 def _link(recording: Recording, name: str) -> int:
