@@ -56,7 +56,7 @@ class Score:
 
 
 CHUNKS = 8  # stretches of the test time on which the explained part is compared
-CONSISTENT = 3.0  # t above which the stretches agree: noise's best reach 1.8, true drifts 3.6 and more (diagnosis_study.py)
+CONSISTENT = 2.0  # t above which the stretches agree: noise's best reach 1.8; a weak real effect has t ~ sqrt(score) / 2
 ABOVE_NOISE = 3.0  # an effect fitted sample by sample must move its angle this many times the noise's rms
 
 
