@@ -30,7 +30,7 @@ import torch
 
 from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.diagnosis.calibration import apply_calibration
-from torchik.pipelines.diagnosis.effect import GUARD, blocks, halves, lowpass_blocks
+from torchik.pipelines.diagnosis.effect import CHUNKS, GUARD, SIGNIFICANT, blocks, halves, lowpass_blocks, score
 from torchik.pipelines.diagnosis.gyro import GyroBias, GyroScale, StreamDelay
 from torchik.pipelines.diagnosis.joints import JointLimit, MissingDof
 from torchik.pipelines.diagnosis.loop import diagnose, errors
@@ -289,3 +289,23 @@ def test_the_fits_low_pass_never_carries_a_test_sample_into_a_train_value(guard)
     for run in range(int(label.max()) + 1):
         inside = label == run
         assert not (bool((inside & train).any()) and bool((inside & test).any()))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_calibrated_score_keeps_an_effect_of_varying_strength_and_drops_one_that_comes_and_goes(seed):
+    """Score.calibrated: an effect whose strength varies with the motion (a scale error on a link that
+    moves fast, then hardly) but is all there is keeps its score (gains scatter as the noise says); one
+    that explains the residual in some stretches and not in others (noise wandering into its shape)
+    scores above SIGNIFICANT but not once calibrated."""
+    g = torch.Generator().manual_seed(seed)
+    t = torch.arange(0.0, 16.0, 0.02, dtype=torch.float64)
+    stretch = torch.div(torch.arange(len(t)), len(t) // CHUNKS, rounding_mode="floor").clamp(max=CHUNKS - 1)
+    shape = torch.stack((torch.sin(7 * t), torch.cos(5 * t), torch.sin(3 * t)), -1)  # [T,3]
+    noise = 0.1 * torch.randn(len(t), 3, generator=g, dtype=torch.float64)
+    strength = torch.tensor([1.0, 0.2, 0.6, 0.1, 0.8, 0.3, 0.05, 0.5], dtype=torch.float64)[stretch, None]
+    real = score(strength * shape + noise, noise, 1)
+    assert real.calibrated > SIGNIFICANT and real.calibrated >= 0.5 * real.score, (real.score, real.dispersion)
+    share = torch.tensor([0.5, 0.0, 0.0, 0.5, 0.0, 0.1, 0.0, 0.0], dtype=torch.float64)[stretch, None]  # of y_hat
+    y_hat = 0.2 * shape
+    wander = score(share * 6 * y_hat + noise, share * 6 * y_hat + noise - y_hat, 1)
+    assert wander.score > SIGNIFICANT and wander.calibrated <= SIGNIFICANT, (wander.score, wander.calibrated)

@@ -18,7 +18,8 @@ samples are not independent; n/tau are),
 
 k the parameters (for an effect with a value per sample, such as a joint angle, one per
 independent sample). An effect is significant when score > SIGNIFICANT (Kass and Raftery's "very
-strong" evidence).
+strong" evidence), also once the noise's variance is taken from how the gains scatter across
+stretches of the test time, where they scatter more than sigma^2 tau says (Score.calibrated).
 """
 
 from __future__ import annotations
@@ -39,34 +40,58 @@ SIGNIFICANT = 10.0
 @dataclass
 class Score:
     """score (see module docstring), explained: share of the channel's test residual the effect
-    removes, sigma2 and tau of what is left, n test values."""
+    removes, sigma2 and tau of what is left, n test values; chunks: what the effect explains,
+    |y|^2 - |y - y_hat|^2, and predicted: the power it predicts, |y_hat|^2, on each of CHUNKS
+    stretches of the test time (both in noise units, sigma2 tau)."""
 
     score: float
     explained: float
     sigma2: float
     tau: float
     n: int
-    chunks: tuple[float, ...] = ()  # the explained part, in noise units, on CHUNKS stretches of the test time
+    chunks: tuple[float, ...] = ()
+    predicted: tuple[float, ...] = ()
 
     @property
-    def consistency(self) -> float:
-        """t statistic of the explained part across the stretches of test time (mean over its standard
-        error): an effect explains the residual all along, a slow wander of the noise only here and there."""
-        return consistency(self.chunks)
+    def dispersion(self) -> float:
+        """How many times more the stretches' gains scatter than the noise the score assumes (see dispersion)."""
+        return dispersion(self.chunks, self.predicted)
+
+    @property
+    def calibrated(self) -> float:
+        """The score with the noise's variance as the stretches show it, where they scatter more than
+        the score assumes (a quasi-likelihood correction): the gain divided by the dispersion, less the
+        same penalty. A real effect keeps its score; the slow wander of coloured noise, which explains
+        the residual in some stretches and not in others, loses it."""
+        gain = sum(self.chunks)
+        return gain / max(self.dispersion, 1.0) - (gain - self.score)
 
 
 CHUNKS = 8  # stretches of the test time on which the explained part is compared
-CONSISTENT = 2.0  # t above which the stretches agree: noise's best reach 1.8; a weak real effect has t ~ sqrt(score) / 2
 ABOVE_NOISE = 3.0  # an effect fitted sample by sample must move its angle this many times the noise's rms
 
 
-def consistency(chunks) -> float:
-    g = np.asarray(chunks, dtype=np.float64)
+def dispersion(gains, predicted) -> float:
+    """The scatter of the stretches' gains g_c (what the effect explains on each, in noise units) over
+    the scatter the score's noise model gives them. An effect's strength varies with the motion (a
+    scale error or a delay shows only while its link moves), so the gain of stretch c is compared with
+    the power the effect predicts there, P_c = |y_hat_c|^2: with y = y_hat + noise, g_c = P_c + 2 <noise,
+    y_hat_c>, of variance 4 P_c. With m = sum g_c / sum P_c (the ratios g_c / P_c weighted by their
+    inverse variance),
+
+        dispersion = sum_c (g_c - m P_c)^2 / P_c / (4 (n - 1)),
+
+    about 1 when the noise is what the score assumes, more when the gains come and go (noise slower or
+    stronger along y_hat than sigma^2 tau says). Stretches where the effect predicts no power (below
+    1e-9 of the largest) carry no information and are left out; fewer than three stretches give 1."""
+    g, P = np.asarray(gains, dtype=np.float64), np.asarray(predicted, dtype=np.float64)
+    if len(P) and P.max() > 0:
+        keep = P > 1e-9 * P.max()
+        g, P = g[keep], P[keep]
     if len(g) < 3:
-        return math.inf
-    spread = float(g.std(ddof=1))
-    mean = float(g.mean())
-    return mean / (spread / math.sqrt(len(g))) if spread > 0 else (math.inf if mean > 0 else -math.inf)
+        return 1.0
+    m = float(g.sum() / P.sum())
+    return float((np.square(g - m * P) / P).sum() / (4.0 * (len(g) - 1)))
 
 
 def score(y: torch.Tensor, leftover: torch.Tensor, k: float, per_sample: int = 0) -> Score:
@@ -81,10 +106,11 @@ def score(y: torch.Tensor, leftover: torch.Tensor, k: float, per_sample: int = 0
     sigma2 = max(rss1 / (n_t * d), 1e-30)
     n_eff = n_t * d / tau
     penalty = (k + per_sample / tau) * math.log(max(n_eff, 2.0))
-    chunks = tuple(float(a.square().sum() - b.square().sum()) / (sigma2 * tau)
-                   for a, b in zip(y.tensor_split(min(CHUNKS, n_t)), leftover.tensor_split(min(CHUNKS, n_t))))
+    parts = list(zip(y.tensor_split(min(CHUNKS, n_t)), leftover.tensor_split(min(CHUNKS, n_t))))
+    chunks = tuple(float(a.square().sum() - b.square().sum()) / (sigma2 * tau) for a, b in parts)
+    predicted = tuple(float((a - b).square().sum()) / (sigma2 * tau) for a, b in parts)
     return Score((rss0 - rss1) / (sigma2 * tau) - penalty, (rss0 - rss1) / max(rss0, 1e-30), sigma2, tau, n_t * d,
-                 chunks)
+                 chunks, predicted)
 
 
 def combine(*scores: tuple[Score, float]) -> Score:
@@ -95,8 +121,9 @@ def combine(*scores: tuple[Score, float]) -> Score:
     n_eff = sum(s.n / s.tau for s, _ in scores)
     explained = sum(s.explained for s, _ in scores) / len(scores)
     chunks = tuple(sum(c) for c in zip(*(s.chunks for s, _ in scores)))
+    predicted = tuple(sum(c) for c in zip(*(s.predicted for s, _ in scores)))
     return Score(total - k * math.log(max(n_eff, 2.0)), explained, scores[0][0].sigma2, scores[0][0].tau,
-                 sum(s.n for s, _ in scores), chunks)
+                 sum(s.n for s, _ in scores), chunks, predicted)
 
 
 GUARD = 0.2  # s: the delay fits look 0.1 s either way; the tracker smooths over 1 / K, 0.05 s at its default
@@ -183,11 +210,12 @@ class Effect:
         return self.fit.score if self.fit is not None else -math.inf
 
     def significant(self, threshold: float, noise_rms: float) -> str:
-        """Why the fit is not significant ("" when it is): its held-out score below `threshold`; or,
-        for a fixed set of parameters, test stretches that disagree (see Score.consistency), for an
-        effect fitted sample by sample, an angle within ABOVE_NOISE times the noise's rms (rad, per
-        axis: what a correct model leaves, analysis.noise_floor): what it explains on its test
-        samples is theirs, and only its size tells it from the noise along its axis."""
+        """Why the fit is not significant ("" when it is): for a fixed set of parameters, its held-out
+        score, calibrated on the scatter of its gains across stretches of the test time (see
+        Score.calibrated), not above `threshold`; for an effect fitted sample by sample, its score
+        not above `threshold` or an angle within ABOVE_NOISE times the noise's rms (rad, per axis: what
+        a correct model leaves, analysis.noise_floor): what it explains on its test samples is
+        theirs, and only its size tells it from the noise along its axis."""
         if self.score <= threshold:
             return f"score {self.score:.1f}, not above {threshold:g}"
         if self.per_sample:
@@ -196,9 +224,11 @@ class Effect:
                 f"its angle's rms {math.degrees(size):.2f} deg is within {ABOVE_NOISE:g} times the noise's "
                 f"{math.degrees(noise_rms):.2f} deg")
         assert self.fit is not None
-        t = self.fit.consistency
-        return "" if t > CONSISTENT else (f"explains the residual in some stretches of time and not in others (t = "
-                                          f"{t:.1f}, not above {CONSISTENT:g}): the noise's slow wander")
+        fit = self.fit
+        return "" if fit.calibrated > threshold else (
+            f"it explains the residual in some stretches of time and not in others: their gains scatter "
+            f"{fit.dispersion:.1f} times more than the noise the score assumes, so corrected its score is "
+            f"{fit.calibrated:.1f}, not above {threshold:g} (the noise's slow wander)")
 
     def angle_rms(self) -> float:
         """The rms (rad) of what a per-sample effect moves (per_sample effects define it)."""

@@ -3,10 +3,11 @@
     for each round:
         analyse the residuals of the current recording and model
         fit every candidate on the train half of the time, score it on the test half (effect.py)
-        the best significant one (Effect.significant: its held-out score above SIGNIFICANT, and its
-        test stretches in agreement, or for an angle fitted sample by sample, a size above the
-        noise that analysis.noise_floor estimates) whose values are plausible (Effect.implausible): refit
-        it on all the data, add it (correct the recording, or augment the URDF), re-track, and
+        the best significant one (Effect.significant: its held-out score above SIGNIFICANT, also once
+        calibrated on how its gains scatter across stretches of the test time (Score.calibrated), or
+        for an angle fitted sample by sample, a size above the noise that analysis.noise_floor
+        estimates) whose values are plausible (Effect.implausible): refit it on all the data,
+        add it (correct the recording, or augment the URDF), re-track, and
         refine its parameters `refine` times (the fits are linearised and the tracker absorbs
         part of an effect: Gauss-Newton steps)
         keep it if the error it acts on did not rise and it is still plausible; else take it back

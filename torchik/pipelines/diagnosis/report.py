@@ -125,7 +125,7 @@ def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]
                      f"to go on.")
     elif d.best_rejected is not None:
         lines.append(f"The best candidate left, {d.best_rejected.summary()}, scores {d.best_rejected.score:.1f} "
-                     f"(significant above {SIGNIFICANT:g}, with test stretches that agree"
+                     f"(significant above {SIGNIFICANT:g}, calibrated on its test stretches' scatter"
                      f"{'' if not d.best_rejected.notes else '; ' + d.best_rejected.notes}).")
     if d.noise is not None:
         lines.append(f"What a correct model leaves, estimated on the data: {math.degrees(d.noise.axis_rms):.2f} deg rms "
