@@ -30,7 +30,7 @@ import torch
 
 from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.diagnosis.calibration import apply_calibration
-from torchik.pipelines.diagnosis.effect import GUARD, halves
+from torchik.pipelines.diagnosis.effect import CHUNKS, GUARD, SIGNIFICANT, blocks, halves, lowpass_blocks, score
 from torchik.pipelines.diagnosis.gyro import GyroBias, GyroScale, StreamDelay
 from torchik.pipelines.diagnosis.joints import JointLimit, MissingDof
 from torchik.pipelines.diagnosis.loop import diagnose, errors
@@ -269,3 +269,43 @@ def test_train_and_test_halves_are_a_guard_apart(rate, duration):
     assert float(gap) >= expected - 1e-9
     train0, test0 = halves(time, guard=0.0)
     assert bool((train0 | test0)[time >= time[0] + start].all()) and not bool((train0 & test0).any())
+
+
+@pytest.mark.parametrize("guard", [None, 0.0])
+def test_the_fits_low_pass_never_carries_a_test_sample_into_a_train_value(guard):
+    """lowpass_blocks filters each run of train or test samples on its own: changing every test
+    sample leaves every filtered train value as it was (and the reverse), with or without the guard;
+    every sample belongs to a run, and the runs alternate train and test."""
+    time = torch.arange(0.0, 12.0, 0.02, dtype=torch.float64)
+    train, test = halves(time, guard=guard)
+    x = torch.randn(len(time), 4, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    base = lowpass_blocks(x, time, 5.0, train, test)
+    for side, other in ((train, test), (test, train)):
+        moved = lowpass_blocks(torch.where(other[:, None, None], x + 10.0 * torch.randn_like(x), x), time, 5.0, train, test)
+        assert torch.equal(moved[side], base[side])
+        assert not torch.allclose(moved[other], base[other])
+    label = blocks(train, test)
+    assert bool((torch.diff(label) >= 0).all()) and int(label.max()) >= 9
+    for run in range(int(label.max()) + 1):
+        inside = label == run
+        assert not (bool((inside & train).any()) and bool((inside & test).any()))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_calibrated_score_keeps_an_effect_of_varying_strength_and_drops_one_that_comes_and_goes(seed):
+    """Score.calibrated: an effect whose strength varies with the motion (a scale error on a link that
+    moves fast, then hardly) but is all there is keeps its score (gains scatter as the noise says); one
+    that explains the residual in some stretches and not in others (noise wandering into its shape)
+    scores above SIGNIFICANT but not once calibrated."""
+    g = torch.Generator().manual_seed(seed)
+    t = torch.arange(0.0, 16.0, 0.02, dtype=torch.float64)
+    stretch = torch.div(torch.arange(len(t)), len(t) // CHUNKS, rounding_mode="floor").clamp(max=CHUNKS - 1)
+    shape = torch.stack((torch.sin(7 * t), torch.cos(5 * t), torch.sin(3 * t)), -1)  # [T,3]
+    noise = 0.1 * torch.randn(len(t), 3, generator=g, dtype=torch.float64)
+    strength = torch.tensor([1.0, 0.2, 0.6, 0.1, 0.8, 0.3, 0.05, 0.5], dtype=torch.float64)[stretch, None]
+    real = score(strength * shape + noise, noise, 1)
+    assert real.calibrated > SIGNIFICANT and real.calibrated >= 0.5 * real.score, (real.score, real.dispersion)
+    share = torch.tensor([0.5, 0.0, 0.0, 0.5, 0.0, 0.1, 0.0, 0.0], dtype=torch.float64)[stretch, None]  # of y_hat
+    y_hat = 0.2 * shape
+    wander = score(share * 6 * y_hat + noise, share * 6 * y_hat + noise - y_hat, 1)
+    assert wander.score > SIGNIFICANT and wander.calibrated <= SIGNIFICANT, (wander.score, wander.calibrated)

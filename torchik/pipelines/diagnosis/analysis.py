@@ -281,6 +281,42 @@ def autocorrelation_time(x: torch.Tensor, axis: int = 0) -> float:
     return float(min(max(tau, 1.0), T / 4.0))
 
 
+@dataclass
+class NoiseFloor:
+    """What a correct model leaves, estimated from the residual of subject b (after the transient):
+    axis_rms (rad), the noise's rms along one axis, the median over the links of the rms along each
+    link's dominant axis (the direction the joints do not follow, where the sensor's noise stays
+    whole); link_power [L], each link's mean |r|^2; noise_power, their median: the power a link
+    carries when nothing but noise is left (effects sit on a minority of the links); share, the
+    fraction of the residual's power that the noise accounts for, sum_l min(P_l, noise_power) /
+    sum_l P_l."""
+
+    axis_rms: float
+    link_power: np.ndarray
+    noise_power: float
+    share: float
+
+
+def noise_floor(analysis: Analysis, b: int = 0, transient: float = 1.0) -> NoiseFloor:
+    time = analysis.time
+    keep = time >= time[0] + (transient if float(time[-1] - time[0]) > 3 * transient else 0.0)
+    ok = analysis.valid[:, b] & keep[:, None]  # [T,L]
+    r = torch.where(ok[..., None], analysis.r_link[:, b], 0.0)  # [T,L,3]
+    n = ok.sum(0).clamp(min=1).to(r.dtype)  # [L]
+    mean = r.sum(0) / n[:, None]
+    centred = torch.where(ok[..., None], r - mean, 0.0)
+    cov = torch.einsum("tli,tlj->lij", centred, centred) / n[:, None, None]
+    dominant = torch.linalg.eigvalsh(cov)[:, -1].clamp(min=0.0)  # [L]
+    power = r.square().sum((0, -1)) / n
+    has = ok.any(0)
+    if not bool(has.any()):
+        return NoiseFloor(0.0, power.numpy(), 0.0, 1.0)
+    axis_rms = float(dominant[has].median().sqrt())
+    noise_power = float(power[has].median())
+    share = float(power[has].clamp(max=noise_power).sum() / power[has].sum().clamp(min=1e-30))
+    return NoiseFloor(axis_rms, power.numpy(), noise_power, share)
+
+
 BANDS = ((0.0, 0.2), (0.2, 1.0), (1.0, 3.0), (3.0, 10.0), (10.0, float("inf")))  # Hz
 
 

@@ -18,7 +18,8 @@ samples are not independent; n/tau are),
 
 k the parameters (for an effect with a value per sample, such as a joint angle, one per
 independent sample). An effect is significant when score > SIGNIFICANT (Kass and Raftery's "very
-strong" evidence).
+strong" evidence), also once the noise's variance is taken from how the gains scatter across
+stretches of the test time, where they scatter more than sigma^2 tau says (Score.calibrated).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ import numpy as np
 import torch
 
 from ...io.recording import Recording
-from .analysis import autocorrelation_time
+from .analysis import autocorrelation_time, lowpass
 
 SIGNIFICANT = 10.0
 
@@ -39,13 +40,58 @@ SIGNIFICANT = 10.0
 @dataclass
 class Score:
     """score (see module docstring), explained: share of the channel's test residual the effect
-    removes, sigma2 and tau of what is left, n test values."""
+    removes, sigma2 and tau of what is left, n test values; chunks: what the effect explains,
+    |y|^2 - |y - y_hat|^2, and predicted: the power it predicts, |y_hat|^2, on each of CHUNKS
+    stretches of the test time (both in noise units, sigma2 tau)."""
 
     score: float
     explained: float
     sigma2: float
     tau: float
     n: int
+    chunks: tuple[float, ...] = ()
+    predicted: tuple[float, ...] = ()
+
+    @property
+    def dispersion(self) -> float:
+        """How many times more the stretches' gains scatter than the noise the score assumes (see dispersion)."""
+        return dispersion(self.chunks, self.predicted)
+
+    @property
+    def calibrated(self) -> float:
+        """The score with the noise's variance as the stretches show it, where they scatter more than
+        the score assumes (a quasi-likelihood correction): the gain divided by the dispersion, less the
+        same penalty. A real effect keeps its score; the slow wander of coloured noise, which explains
+        the residual in some stretches and not in others, loses it."""
+        gain = sum(self.chunks)
+        return gain / max(self.dispersion, 1.0) - (gain - self.score)
+
+
+CHUNKS = 8  # stretches of the test time on which the explained part is compared
+ABOVE_NOISE = 3.0  # an effect fitted sample by sample must move its angle this many times the noise's rms
+
+
+def dispersion(gains, predicted) -> float:
+    """The scatter of the stretches' gains g_c (what the effect explains on each, in noise units) over
+    the scatter the score's noise model gives them. An effect's strength varies with the motion (a
+    scale error or a delay shows only while its link moves), so the gain of stretch c is compared with
+    the power the effect predicts there, P_c = |y_hat_c|^2: with y = y_hat + noise, g_c = P_c + 2 <noise,
+    y_hat_c>, of variance 4 P_c. With m = sum g_c / sum P_c (the ratios g_c / P_c weighted by their
+    inverse variance),
+
+        dispersion = sum_c (g_c - m P_c)^2 / P_c / (4 (n - 1)),
+
+    about 1 when the noise is what the score assumes, more when the gains come and go (noise slower or
+    stronger along y_hat than sigma^2 tau says). Stretches where the effect predicts no power (below
+    1e-9 of the largest) carry no information and are left out; fewer than three stretches give 1."""
+    g, P = np.asarray(gains, dtype=np.float64), np.asarray(predicted, dtype=np.float64)
+    if len(P) and P.max() > 0:
+        keep = P > 1e-9 * P.max()
+        g, P = g[keep], P[keep]
+    if len(g) < 3:
+        return 1.0
+    m = float(g.sum() / P.sum())
+    return float((np.square(g - m * P) / P).sum() / (4.0 * (len(g) - 1)))
 
 
 def score(y: torch.Tensor, leftover: torch.Tensor, k: float, per_sample: int = 0) -> Score:
@@ -60,7 +106,11 @@ def score(y: torch.Tensor, leftover: torch.Tensor, k: float, per_sample: int = 0
     sigma2 = max(rss1 / (n_t * d), 1e-30)
     n_eff = n_t * d / tau
     penalty = (k + per_sample / tau) * math.log(max(n_eff, 2.0))
-    return Score((rss0 - rss1) / (sigma2 * tau) - penalty, (rss0 - rss1) / max(rss0, 1e-30), sigma2, tau, n_t * d)
+    parts = list(zip(y.tensor_split(min(CHUNKS, n_t)), leftover.tensor_split(min(CHUNKS, n_t))))
+    chunks = tuple(float(a.square().sum() - b.square().sum()) / (sigma2 * tau) for a, b in parts)
+    predicted = tuple(float((a - b).square().sum()) / (sigma2 * tau) for a, b in parts)
+    return Score((rss0 - rss1) / (sigma2 * tau) - penalty, (rss0 - rss1) / max(rss0, 1e-30), sigma2, tau, n_t * d,
+                 chunks, predicted)
 
 
 def combine(*scores: tuple[Score, float]) -> Score:
@@ -70,11 +120,13 @@ def combine(*scores: tuple[Score, float]) -> Score:
     total = sum(s.score for s, _ in scores)
     n_eff = sum(s.n / s.tau for s, _ in scores)
     explained = sum(s.explained for s, _ in scores) / len(scores)
+    chunks = tuple(sum(c) for c in zip(*(s.chunks for s, _ in scores)))
+    predicted = tuple(sum(c) for c in zip(*(s.predicted for s, _ in scores)))
     return Score(total - k * math.log(max(n_eff, 2.0)), explained, scores[0][0].sigma2, scores[0][0].tau,
-                 sum(s.n for s, _ in scores))
+                 sum(s.n for s, _ in scores), chunks, predicted)
 
 
-GUARD = 0.2  # s: the fits low-pass at up to 5 Hz, whose response's main lobe spans about 1/5 s
+GUARD = 0.2  # s: the delay fits look 0.1 s either way; the tracker smooths over 1 / K, 0.05 s at its default
 
 
 def halves(time: torch.Tensor, block: float = 1.0, transient: float = 1.0, guard: float | None = None
@@ -85,11 +137,12 @@ def halves(time: torch.Tensor, block: float = 1.0, transient: float = 1.0, guard
     (none when the recording is shorter than three times that); a recording shorter than one and
     a half blocks alternates quarters instead.
 
-    Samples within guard / 2 of a block's edge are in neither half: the fits low-pass the whole
-    series, and without the gap a test sample's filtered value would hold the noise of the
-    training samples beside it (and the reverse), which makes the held-out score optimistic. The
-    default guard is the filter's span, 1 / cutoff with the fits' cutoff min(5 Hz, rate / 4), and
-    at most half a block; guard = 0 gives every sample a half."""
+    Samples within guard / 2 of a block's edge are in neither half. The fits low-pass within each
+    block (lowpass_blocks), but the residual itself is the tracker's output, which smooths the
+    measurements over about 1 / K (0.05 s at the default K = 20 / s), and the delay fits look up to 0.1 s
+    away: without the gap a test sample would hold the noise of the training samples beside it (and
+    the reverse), which makes the held-out score optimistic. The default guard is 0.2 s (at least
+    four samples), at most half a block; guard = 0 gives every sample a half."""
     if guard is None:
         guard = max(GUARD, 4.0 * float(torch.diff(time).median())) if len(time) > 1 else 0.0
     start = float(time[0]) + (transient if float(time[-1] - time[0]) > 3 * transient else 0.0)
@@ -102,6 +155,35 @@ def halves(time: torch.Tensor, block: float = 1.0, transient: float = 1.0, guard
     margin = min(0.5 * guard / block, 0.25)
     inside = (time >= start) & (phase >= margin) & (phase < 1.0 - margin)
     return (index % 2 == 0) & inside, (index % 2 == 1) & inside
+
+
+def blocks(train: torch.Tensor, test: torch.Tensor) -> torch.Tensor:
+    """[T] the run of halves() each sample belongs to: runs of train or test samples numbered in
+    time, and every sample in neither half (a guard, the transient) given to the nearest run."""
+    side = torch.where(train, 1, torch.where(test, 2, 0))
+    marked = torch.nonzero(side > 0)[:, 0]
+    if len(marked) == 0:
+        return torch.zeros_like(side)
+    run = torch.cat((torch.zeros(1, dtype=torch.long), torch.cumsum(side[marked][1:] != side[marked][:-1], 0)))
+    after = torch.searchsorted(marked, torch.arange(len(side))).clamp(max=len(marked) - 1)
+    before = (after - 1).clamp(min=0)
+    t = torch.arange(len(side))
+    nearest = torch.where((t - marked[before]).abs() <= (marked[after] - t).abs(), before, after)
+    return run[nearest]
+
+
+def lowpass_blocks(x: torch.Tensor, time: torch.Tensor, cutoff: float, train: torch.Tensor,
+                   test: torch.Tensor) -> torch.Tensor:
+    """lowpass (analysis.py) of x [T,...] within each run of blocks(train, test) on its own, so that
+    no filtered train value holds a test sample and no filtered test value a train sample: filtered
+    over the whole series, a test sample's value near a block edge would carry the noise of the
+    training samples beside it (the filter's response beyond the 0.2 s guard still holds 2-3 % of
+    its energy) and the held-out score would be optimistic."""
+    label = blocks(train, test)
+    edges = torch.nonzero(torch.diff(label))[:, 0] + 1
+    starts = [0] + edges.tolist()
+    ends = edges.tolist() + [len(label)]
+    return torch.cat([lowpass(x[a:b], time[a:b], cutoff) for a, b in zip(starts, ends)])
 
 
 @dataclass
@@ -121,9 +203,36 @@ class Effect:
     additive: ClassVar[tuple[str, ...]] = ()  # the parameters that compose by addition (refine)
     error = "mnte"  # the overall error it must lower to be kept (Errors.overall's key)
 
+    per_sample = False  # a value fitted at every sample (a joint angle): it explains noise on its test samples too
+
     @property
     def score(self) -> float:
         return self.fit.score if self.fit is not None else -math.inf
+
+    def significant(self, threshold: float, noise_rms: float) -> str:
+        """Why the fit is not significant ("" when it is): for a fixed set of parameters, its held-out
+        score, calibrated on the scatter of its gains across stretches of the test time (see
+        Score.calibrated), not above `threshold`; for an effect fitted sample by sample, its score
+        not above `threshold` or an angle within ABOVE_NOISE times the noise's rms (rad, per axis: what
+        a correct model leaves, analysis.noise_floor): what it explains on its test samples is
+        theirs, and only its size tells it from the noise along its axis."""
+        if self.score <= threshold:
+            return f"score {self.score:.1f}, not above {threshold:g}"
+        if self.per_sample:
+            size = self.angle_rms()
+            return "" if size > ABOVE_NOISE * noise_rms else (
+                f"its angle's rms {math.degrees(size):.2f} deg is within {ABOVE_NOISE:g} times the noise's "
+                f"{math.degrees(noise_rms):.2f} deg")
+        assert self.fit is not None
+        fit = self.fit
+        return "" if fit.calibrated > threshold else (
+            f"it explains the residual in some stretches of time and not in others: their gains scatter "
+            f"{fit.dispersion:.1f} times more than the noise the score assumes, so corrected its score is "
+            f"{fit.calibrated:.1f}, not above {threshold:g} (the noise's slow wander)")
+
+    def angle_rms(self) -> float:
+        """The rms (rad) of what a per-sample effect moves (per_sample effects define it)."""
+        return math.inf
 
     def overlaps(self, other: "Effect") -> bool:
         """Whether the two would correct the same thing (same kind, same target or one of them on all)."""

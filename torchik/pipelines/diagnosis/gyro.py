@@ -19,11 +19,12 @@ import numpy as np
 import torch
 
 from ...io.recording import Recording
-from .analysis import Analysis, lowpass, simpson
-from .effect import Effect, replace, score, shift
+from .analysis import Analysis, simpson
+from .effect import Effect, lowpass_blocks, replace, score, shift
 from .placement import MAX_DELAY
 
 MAX_SCALE = 0.1  # a gyro whose scale is off by more than this is broken, not miscalibrated
+MAX_BIAS = 10.0  # deg/s: an uncalibrated MEMS gyro's zero-rate offset stays within this; beyond, a unit or axis error
 
 
 def _link(recording: Recording, name: str) -> int:
@@ -41,6 +42,11 @@ class GyroBias(Effect):
         w = recording.angular_velocity.copy()
         w[:, i] += sign * recording.orientation[:, i] @ b
         return replace(recording, angular_velocity=w)
+
+    def implausible(self):
+        size = float(np.degrees(np.linalg.norm(self.params["bias"])))
+        return (f"a bias of {size:.3g} deg/s, beyond the {MAX_BIAS:g} deg/s a gyro has: a sign of a stream in other "
+                f"units or axes, or of orientations that are not this sensor's" if size > MAX_BIAS else "")
 
     def summary(self):
         b = np.asarray(self.params["bias"])
@@ -67,7 +73,8 @@ class GyroScale(Effect):
 
     def implausible(self):
         k = self.params["scale_error"]
-        return f"a scale error of {100 * k:+.1f} %, beyond {100 * MAX_SCALE:.0f} %" if abs(k) > MAX_SCALE else ""
+        return (f"a scale error of {100 * k:+.1f} %, beyond {100 * MAX_SCALE:.0f} %: a sign of a gyro in other units, "
+                f"or of rates too small to tell a scale" if abs(k) > MAX_SCALE else "")
 
     def summary(self):
         return f"gyro scale error on {self.target}: {100 * self.params['scale_error']:+.2f} %"
@@ -89,7 +96,8 @@ class StreamDelay(Effect):
 
     def implausible(self):
         delay = self.params["delay"]
-        return f"a delay of {delay:.3g} s, beyond {MAX_DELAY} s" if abs(delay) > MAX_DELAY else ""
+        return (f"a delay of {delay:.3g} s, beyond the {MAX_DELAY} s a stream has: a sign of streams of different "
+                f"takes, or of a clock error" if abs(delay) > MAX_DELAY else "")
 
     def summary(self):
         which = f"every gyro ({len(self.params['links'])} sensors)" if self.target == "all" else f"gyro of {self.target}"
@@ -112,7 +120,7 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
     cutoff = min(cutoff, 0.25 / dt)
     eye = torch.eye(3, dtype=time.dtype)
     ok = analysis.valid[:, b]  # [T,L]
-    low = lambda x: lowpass(x, time, cutoff)  # noqa: E731  (column by column: all links at once)
+    low = lambda x: lowpass_blocks(x, time, cutoff, train, test)  # noqa: E731  (all links at once)
     e_low = low(analysis.e[:, b])
     R_low = low(torch.where(ok[..., None, None], analysis.R_m[:, b], eye))
     w_lows = low(simpson(torch.where(ok[..., None], analysis.w_m[:, b], 0.0)))

@@ -32,6 +32,7 @@ from .effect import Effect, score
 
 REGULARISE = 0.05
 MAX_WIDENING = math.pi / 2  # rad: a limit this far from the motion is no limit too narrow but another error
+MAX_RANGE = math.pi  # rad: no joint of a body moves over more than this about one axis
 LEVERAGE = 1e-3  # a subtree the joints follow to within this share about every axis has no axis missing
 
 
@@ -115,9 +116,12 @@ class MissingDof(Effect):
     """A revolute axis params['axis'] [3] (unit, in the frame of `params['parent']`, orthogonal to
     the joint's own axes at zero) missing at the joint `target` (the chain from params['parent'] to
     params['child']); params['first_joint'] is the joint it is inserted before,
-    params['angle_range'] the range of the fitted angle (rad)."""
+    params['angle_range'] the range of the fitted angle and params['angle_rms'] its rms about its mean (rad)."""
 
-    model_effect = True
+    model_effect, per_sample = True, True
+
+    def angle_rms(self) -> float:
+        return float(self.params.get("angle_rms", math.inf))
 
     def joint_name(self) -> str:
         return f"{self.target}_added"
@@ -144,6 +148,12 @@ class MissingDof(Effect):
         root.insert(children.index(joint) + 1, new)
         return ET.tostring(root, encoding="unicode")
 
+    def implausible(self):
+        lo, hi = self.params["angle_range"]
+        return (f"an axis moving over {math.degrees(hi - lo):.0f} deg, beyond the {math.degrees(MAX_RANGE):.0f} deg of "
+                f"any joint of a body: a sign of a segment frame flipped or swapped, or of a mislabelled marker"
+                if hi - lo > MAX_RANGE else "")
+
     def summary(self):
         a = np.asarray(self.params["axis"])
         lo, hi = self.params["angle_range"]
@@ -156,7 +166,10 @@ class JointLimit(Effect):
     """Joint `target`'s params['side'] limit params['limit'] (rad, the model's) is narrower than
     the motion, which needs params['needed'] (rad)."""
 
-    model_effect = True
+    model_effect, per_sample = True, True
+
+    def angle_rms(self) -> float:
+        return abs(self.params["needed"] - self.params["limit"])
 
     def augment(self, urdf: str) -> str:
         root = ET.fromstring(urdf)
@@ -174,7 +187,8 @@ class JointLimit(Effect):
         needed, limit = self.params["needed"], self.params["limit"]
         if abs(needed) > math.pi or abs(needed - limit) > MAX_WIDENING:
             return (f"a range to {math.degrees(needed):.0f} deg from a limit of {math.degrees(limit):.0f} deg: no joint "
-                    f"limit is that far off (more than {math.degrees(MAX_WIDENING):.0f} deg, or beyond 180 deg)")
+                    f"limit is that far off (more than {math.degrees(MAX_WIDENING):.0f} deg, or beyond 180 deg): a sign of "
+                    f"a static pose that is not the assumed one, or of a segment frame flipped")
         return ""
 
     def summary(self):
@@ -250,7 +264,8 @@ def _missing(analysis, b, train, test, urdf, target=None) -> list[Effect]:
         sd = math.sqrt(fit.sigma2 * fit.tau / max(gap, 1e-30))
         out.append(MissingDof("missing_dof", _stem(group), dict(
             axis=a.tolist(), parent=group.parent, child=group.child, first_joint=group.first_joint,
-            angle_range=[float(theta[tr | te].min()), float(theta[tr | te].max())]),
+            angle_range=[float(theta[tr | te].min()), float(theta[tr | te].max())],
+            angle_rms=float(theta[tr | te].std())),
             dict(axis_rad=sd), 2, fit))
     return out
 

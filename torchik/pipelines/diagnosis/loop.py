@@ -3,12 +3,16 @@
     for each round:
         analyse the residuals of the current recording and model
         fit every candidate on the train half of the time, score it on the test half (effect.py)
-        the best scoring above SIGNIFICANT whose values are plausible (Effect.implausible): refit
-        it on all the data, add it (correct the recording, or augment the URDF), re-track, and
+        the best significant one (Effect.significant: its held-out score above SIGNIFICANT, also once
+        calibrated on how its gains scatter across stretches of the test time (Score.calibrated), or
+        for an angle fitted sample by sample, a size above the noise that analysis.noise_floor
+        estimates) whose values are plausible (Effect.implausible): refit it on all the data,
+        add it (correct the recording, or augment the URDF), re-track, and
         refine its parameters `refine` times (the fits are linearised and the tracker absorbs
         part of an effect: Gauss-Newton steps)
         keep it if the error it acts on did not rise and it is still plausible; else take it back
-    until no candidate is significant, or `max_effects` rounds are done.
+    until no candidate is significant, or `max_effects` rounds are done; Diagnosis.stop says which
+    (STOPS), and Diagnosis.noise how much of what remains the noise accounts for.
 
 Candidates the data cannot identify (the joints follow them, or there is no gyro) come back
 without a fit and are listed, from the first round, in Diagnosis.unobservable.
@@ -30,7 +34,7 @@ from ...io.recording import Recording
 from ...method.kinematics import KinematicModel
 from ...method.metrics import orientation_error
 from . import gyro, joints, placement, position
-from .analysis import DEFAULT_GAIN, Analysis, analyse, joint_summary, link_summary
+from .analysis import DEFAULT_GAIN, Analysis, NoiseFloor, analyse, joint_summary, link_summary, noise_floor
 from .calibration import FORMAT
 from .effect import SIGNIFICANT, Effect, halves
 
@@ -39,6 +43,12 @@ KINDS = ("gyro_bias", "gyro_scale", "stream_delay", "misalignment", "sensor_dela
          "joint_limit", "position_offset")
 TIE = 0.9  # a second candidate scoring this share of the best explains the data nearly as well
 WORSE = 1e-3  # an effect that raises its error by more than this share once re-tracked is taken back
+NOISE_SHARE = 0.8  # the noise accounts for this share of what remains: the residual is consistent with it
+STOPS = {"noise": "consistent with noise: no candidate is significant, and the noise accounts for what remains",
+         "unexplained": "no candidate is significant, but more remains than the noise accounts for: a cause none "
+                        "of the candidates describes",
+         "unidentifiable": "nothing identifiable: no candidate can be fitted on these data",
+         "cap": "cap reached: candidates were still significant after the last round allowed (--max-effects)"}
 
 
 def candidates(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, urdf: str,
@@ -134,6 +144,13 @@ class Diagnosis:
     unobservable: list[Effect] = field(default_factory=list)
     rejected: list[Effect] = field(default_factory=list)
     complete: bool = True
+    stop: str = ""  # why the loop stopped: a key of STOPS
+    noise: NoiseFloor | None = None  # what a correct model would leave, estimated on the last analysis
+
+    @property
+    def why_stopped(self) -> str:
+        share = "" if self.noise is None else f" (the noise accounts for {100 * self.noise.share:.0f} % of the residual)"
+        return STOPS.get(self.stop, self.stop) + share
 
     @property
     def effects(self) -> list[Effect]:
@@ -166,6 +183,7 @@ class _Subject:
     derived: torch.Tensor | None = None
     unobservable: list = field(default_factory=list)
     rejected: list = field(default_factory=list)
+    stop: str = "cap"
 
     @property
     def current(self) -> tuple[Analysis, int]:
@@ -224,8 +242,16 @@ def _choose(s: _Subject, kinds, threshold: float, first: bool) -> Effect | None:
     if first:
         s.unobservable = [c for c in found if c.fit is None]
     found = [c for c in found if c.fit is not None]
-    while found and found[0].score > threshold:
-        best = found.pop(0)
+    noise = noise_floor(*s.current)
+    passing = []
+    for c in found:
+        why = c.significant(threshold, noise.axis_rms)
+        if not why:
+            passing.append(c)
+        elif c.score > threshold:
+            c.notes = "; ".join(filter(None, [c.notes, f"not significant: {why}"]))
+    while passing:
+        best = passing.pop(0)
         final = s.refit(best) or best
         final.fit = best.fit  # the score is the held-out one
         why = final.implausible()
@@ -235,8 +261,9 @@ def _choose(s: _Subject, kinds, threshold: float, first: bool) -> Effect | None:
         s.rejected.append(final)
     else:
         s.done, s.best_rejected = True, found[0] if found else None
+        s.stop = "unidentifiable" if not found else "noise" if noise.share >= NOISE_SHARE else "unexplained"
         return None
-    rivals = [c for c in found if c.score >= TIE * best.score and c.kind == best.kind]
+    rivals = [c for c in passing if c.score >= TIE * best.score and c.kind == best.kind]
     if rivals:
         final.notes = "; ".join(filter(None, [final.notes, "explained nearly as well by " + ", ".join(
             f"{c.kind} at {c.target} (score {c.score:.0f} against {best.score:.0f})" for c in rivals)
@@ -304,5 +331,5 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
         remaining = sorted((row for row in link_summary(analysis, b) if "rms_deg" in row), key=lambda r: -r["rms_deg"])
         out.append(Diagnosis(s.steps, s.recording, original, s.urdf, s.model, links, s.initial, s.current,
                              s.best_rejected, remaining, joint_summary(analysis, b), s.unobservable, s.rejected,
-                             s.done))
+                             s.done, s.stop, noise_floor(analysis, b)))
     return out

@@ -24,11 +24,12 @@ import numpy as np
 import torch
 
 from ...method import so3
-from .analysis import Analysis, lowpass
-from .effect import Effect, Score, combine, replace, rotation_about, score, shift
+from .analysis import Analysis
+from .effect import Effect, Score, combine, lowpass_blocks, replace, rotation_about, score, shift
 
 MAX_DELAY = 0.25  # s: a sensor later than this on the others is no delay but a different recording
 MAX_DRIFT = 5.0  # deg/s: heading drift of inertial sensors is a fraction of this
+MAX_MISALIGNMENT = 45.0  # deg: the most a strap or a marker cluster turns a sensor on its segment
 IDENTIFIABLE = 1e-2  # eigenvalues of G^T M G below this share of the largest: a direction not identified
 LEVERAGE = 1e-3  # a direction that leaves less of itself in the residual (G^T M G against G^T G): followed by the joints
 
@@ -125,6 +126,18 @@ class Misalignment(Effect):
     def rotation(self) -> np.ndarray:
         return so3.exp(torch.tensor(self.params["rotation_vector"], dtype=torch.float64)).numpy()
 
+    def implausible(self):
+        c = np.asarray(self.params["rotation_vector"], dtype=np.float64)
+        angle = float(np.degrees(np.linalg.norm(c)))
+        if angle <= MAX_MISALIGNMENT:
+            return ""
+        axis = c / np.linalg.norm(c)
+        near = int(np.argmax(np.abs(axis)))
+        flipped = abs(axis[near]) > 0.9 and min(abs(angle - 90.0), abs(angle - 180.0)) < 20.0
+        cause = (f"a segment frame flipped or swapped (about {angle:.0f} deg about its {'xyz'[near]} axis)" if flipped
+                 else "a static pose that is not the assumed one (the arms', the pelvis' posture) or a mislabelled marker")
+        return f"a misalignment of {angle:.0f} deg, beyond the {MAX_MISALIGNMENT:g} deg a strap allows: a sign of {cause}"
+
     def refine(self, update):
         C = update.rotation() @ self.rotation()  # R_m C^T = R Delta: C_true = Delta C
         self.params["rotation_vector"] = so3.log(torch.from_numpy(C)).tolist()
@@ -152,7 +165,8 @@ class SensorDelay(Effect):
 
     def implausible(self):
         delay = self.params["delay"]
-        return f"a delay of {delay:.3g} s, beyond {MAX_DELAY} s" if abs(delay) > MAX_DELAY else ""
+        return (f"a delay of {delay:.3g} s, beyond the {MAX_DELAY} s a sensor lags: a sign of a sensor of "
+                f"another take, or of a clock error" if abs(delay) > MAX_DELAY else "")
 
     def summary(self):
         return f"the {self.target} sensor is late on the others by {1e3 * self.params['delay']:.1f} ms"
@@ -175,7 +189,8 @@ class HeadingDrift(Effect):
 
     def implausible(self):
         rate = np.degrees(abs(self.params["rate"]))
-        return f"a drift of {rate:.3g} deg/s, beyond {MAX_DRIFT} deg/s" if rate > MAX_DRIFT else ""
+        return (f"a drift of {rate:.3g} deg/s, beyond the {MAX_DRIFT:g} deg/s of an inertial sensor: a sign of a "
+                f"segment's offset changing (skin, a slipping strap) or of a mislabelled marker" if rate > MAX_DRIFT else "")
 
     def summary(self):
         return f"heading of the {self.target} sensor drifting by {np.degrees(self.params['rate']):+.3f} deg/s"
@@ -200,7 +215,7 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
     w_hat = analysis.w_hat[k, b][:, usable].transpose(0, 1)  # [N,S,3]
     misalignments = fit_linear(analysis, b, usable, R_hat, tr, te)
     delays = fit_linear(analysis, b, usable, -w_hat[..., None], tr, te)
-    drifts = _drift(analysis, b, usable, tr, te, derived)
+    drifts = _drift(analysis, b, usable, tr, te, derived, train, test)
     out: list[Effect] = []
     for i, mis, delay, head in zip(usable, misalignments, delays, drifts):
         name = analysis.links[i]
@@ -225,13 +240,14 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
 
 
 def _drift(analysis: Analysis, b: int, usable: list[int], tr: torch.Tensor, te: torch.Tensor,
-           derived: torch.Tensor) -> list[LinearFit]:
+           derived: torch.Tensor, train: torch.Tensor, test: torch.Tensor) -> list[LinearFit]:
     """Heading-drift fits of the links `usable`: G = (t - t0) z on the orientation channel and, where
-    the link has a gyro, its disagreement with the orientations e_z = -rate, fitted together."""
+    the link has a gyro, its disagreement with the orientations e_z = -rate, fitted together (e_z
+    low-passed within the blocks of train and test)."""
     k, time = analysis.sample, analysis.time
     z = torch.tensor([0.0, 0.0, 1.0], dtype=time.dtype)
     drift = ((time[k] - time[0])[:, None] * z)[..., None]  # [S,3,1]
-    e_z = lowpass(analysis.e[:, b, :, 2], time, min(5.0, 0.25 / float(torch.diff(time).median())))
+    e_z = lowpass_blocks(analysis.e[:, b, :, 2], time, min(5.0, 0.25 / float(torch.diff(time).median())), train, test)
     gyro = [n for n, i in enumerate(usable) if not bool(derived[i])]
     none = [n for n, i in enumerate(usable) if bool(derived[i])]
     extra = []

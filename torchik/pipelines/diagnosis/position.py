@@ -18,8 +18,10 @@ import numpy as np
 import torch
 
 from ...method import so3
-from .analysis import Analysis, lowpass, simpson
-from .effect import Effect, replace, score
+from .analysis import Analysis, simpson
+from .effect import Effect, lowpass_blocks, replace, score
+
+MAX_OFFSET = 0.3  # m: a point on the pelvis is within this of its origin
 
 
 @dataclass
@@ -33,6 +35,11 @@ class PositionOffset(Effect):
         R = recording.orientation[:, recording.links.index(recording.base_link)]
         p = recording.base_position + sign * (R @ np.asarray(self.params["offset"]))
         return replace(recording, base_position=p)
+
+    def implausible(self):
+        size = float(np.linalg.norm(self.params["offset"]))
+        return (f"a position {100 * size:.0f} cm from the link's origin, beyond the {100 * MAX_OFFSET:.0f} cm of a "
+                f"segment: a sign of a position of another segment, or in other units" if size > MAX_OFFSET else "")
 
     def summary(self):
         o = np.asarray(self.params["offset"])
@@ -56,7 +63,7 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, cut
     if int(tr.sum()) < 8 or int(te.sum()) < 8:
         return []
     cutoff = min(cutoff, 0.25 / float(torch.diff(time).median()))
-    low = lambda x: lowpass(x, time, cutoff)  # noqa: E731
+    low = lambda x: lowpass_blocks(x, time, cutoff, train, test)  # noqa: E731
     R = torch.where(ok[:, None, None], analysis.R_m[:, b, i], torch.eye(3, dtype=time.dtype))
     w = simpson(torch.where(ok[:, None], analysis.w_m[:, b, i], 0.0))
     X = low(-so3.hat(w) @ R)

@@ -82,7 +82,7 @@ def _fmt(x: float) -> str:
 
 def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]) -> str:
     before, after = d.before.overall, d.after.overall
-    lines = [f"# Diagnosis of {source}", "", f"Model: {model_name}; {len(d.links)} tracked links; "
+    lines = [f"# Diagnosis of {source}", "", *answer(d), "", f"Model: {model_name}; {len(d.links)} tracked links; "
              f"{len(d.original.time)} frames at {d.original.frame_rate:.1f} Hz.", ""]
     if d.effects:
         lines += ["## Effects found (in the order added)", "",
@@ -109,19 +109,29 @@ def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]
     for i, link in enumerate(d.links):
         lines.append(f"| {link} | {_fmt(d.before.mnte[i])} → {_fmt(d.after.mnte[i])} | "
                      f"{_fmt(d.before.rmse[i])} → {_fmt(d.after.rmse[i])} |")
-    if d.rejected:
+    implausible = [e for e in d.rejected if "implausible:" in e.notes]
+    if implausible:
+        lines += ["", "## Refused as implausible: a sign of another error", ""]
+        lines += [f"- {e.summary()} (score {e.score:.0f}): {e.notes}" for e in implausible]
+    reverted = [e for e in d.rejected if "implausible:" not in e.notes]
+    if reverted:
         lines += ["", "## Significant but not kept", ""]
-        lines += [f"- {e.kind} at {e.target} (score {e.score:.0f}): {e.notes}" for e in d.rejected]
+        lines += [f"- {e.kind} at {e.target} (score {e.score:.0f}): {e.notes}" for e in reverted]
     lines += ["", "## What remains", ""]
+    lines.append(f"Why the loop stopped: {d.why_stopped}.")
     if not d.complete:
         rounds = len(d.steps) + sum("reverted" in e.notes for e in d.rejected)
-        lines.append(f"The loop stopped at its limit of effects ({rounds} "
-                     f"rounds) while candidates were still significant: run it again with more (--max-effects) to go on.")
+        lines.append(f"It stopped at its limit of effects ({rounds} rounds): run it again with more (--max-effects) "
+                     f"to go on.")
     elif d.best_rejected is not None:
         lines.append(f"The best candidate left, {d.best_rejected.summary()}, scores {d.best_rejected.score:.1f} "
-                     f"(significant above {SIGNIFICANT:g}): no candidate explains what remains.")
-    else:
-        lines.append("No candidate is left to explain what remains.")
+                     f"(significant above {SIGNIFICANT:g}, calibrated on its test stretches' scatter"
+                     f"{'' if not d.best_rejected.notes else '; ' + d.best_rejected.notes}).")
+    if d.noise is not None:
+        lines.append(f"What a correct model leaves, estimated on the data: {math.degrees(d.noise.axis_rms):.2f} deg rms "
+                     f"along an axis the joints do not follow; a link's residual power at the noise is "
+                     f"{d.noise.noise_power:.3g} (median over the links), which accounts for "
+                     f"{100 * d.noise.share:.0f} % of the residual left.")
     if d.unobservable:
         lines += ["", "Not identifiable from these data (no fit was possible):", ""]
         groups: dict[tuple[str, str], list[str]] = {}
@@ -142,6 +152,25 @@ def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]
         lines += ["", "Joints at a limit: " + ", ".join(at_limit)]
     lines += [""] + [f"![{name}]({path})" for name, path in figures.items()] + [""]
     return "\n".join(lines)
+
+
+def answer(d: Diagnosis) -> list[str]:
+    """The report's first lines: the effects kept, each with its evidence in one sentence; what was
+    refused as implausible and the error it points to; why the loop stopped."""
+    if d.steps:
+        lines = ["**Found:**", ""]
+        for step in d.steps:
+            e = step.effect
+            share = "" if e.fit is None else f", explaining {100 * e.fit.explained:.0f} % of its channel's held-out residual"
+            lines.append(f"- {e.summary()}: held-out score {e.score:.0f}{share}; MNTE "
+                         f"{_fmt(step.before.overall['mnte'])} → {_fmt(step.after.overall['mnte'])}.")
+    else:
+        lines = ["**Found: nothing** the data tell from the noise."]
+    refused = [e for e in d.rejected if "implausible:" in e.notes]
+    if refused:
+        lines += ["", "**Refused as implausible** (not adopted; each points to another error):", ""]
+        lines += [f"- {e.summary()}: {e.notes.split('implausible: ', 1)[1]}" for e in refused]
+    return lines + ["", f"**Why the loop stopped:** {d.why_stopped}."]
 
 
 def _json(value, digits: int = 4) -> str:
@@ -191,7 +220,9 @@ def write(d: Diagnosis, out: str | Path, source: str, model_name: str, rrd: bool
                    before=d.before.to_json(), after=d.after.to_json(),
                    best_rejected=None if d.best_rejected is None else d.best_rejected.to_json(),
                    rejected=[e.to_json() for e in d.rejected], unobservable=[e.to_json() for e in d.unobservable],
-                   remaining=d.remaining, limits=d.limits, complete=d.complete)
+                   remaining=d.remaining, limits=d.limits, complete=d.complete, stop=d.stop, why_stopped=d.why_stopped,
+                   noise=None if d.noise is None else dict(axis_rms_rad=d.noise.axis_rms, power=d.noise.noise_power,
+                                                           share=d.noise.share))
     paths["json"] = out / "diagnosis.json"
     paths["json"].write_text(json.dumps(summary, indent=2, default=float) + "\n")
     md = markdown(d, source, model_name, {"errors per link": "errors.png", "residual over time": "residual.png"})
