@@ -55,7 +55,7 @@ def measure(characters: int, rate: float, duration: float) -> dict:
     sender.start()
     publisher = Publisher(f"torchik-latency-{characters}-{rate:g}", model, rate=rate)
     result = track_live(source, model, lambda names: Selection.build(names, links), publisher=publisher,
-                        options=LiveOptions(backlog=1, stop_when_idle_s=1.0))
+                        options=LiveOptions(backlog=1, stop_when_idle_s=1.0, keep_states=False))
     sender.join()
     # the warm-up's share of the published samples left out (by count, not by frames: samples the
     # tracker stepped over were never published, so the frame count would leave out too many)

@@ -27,8 +27,17 @@ Items, per segment, big-endian (segment ID i32, then float32 values):
 | 21 | linear segment kinematics: ID, position, velocity, acceleration (3 each) | 40 |
 | 22 | angular segment kinematics: ID, quaternion re i j k, angular velocity, angular acceleration (3 each) | 44 |
 
-Positions m, velocities m/s, angular velocities rad/s, all in MVN's Z-up world frame; the
-quaternion turns the segment frame into the world frame. Segment IDs 1..23 are the body segments
+Units, checked against the sources (revision N of the specification, 2018; the MVN user manual
+MV0319P; Xsens' streaming sample code): the quaternion is (re, i, j, k) = (w, x, y, z), normalised,
+segment to world (spec 2.5.3, 2.5.8, 2.7.3), all in MVN's Z-up, right-handed world frame. Angular
+velocities are rad/s: Xsens' own sample receiver converts the type 22 values with
+XsMath_rad2deg to print them. Positions are metres (velocities m/s): the user manual's network
+streaming table says of the quaternion pose "position units are in meters", as does Xsens'
+knowledge base ("Network Streamer in MVN"), and MVNX files, whose recordings replay as these
+streams, are in metres. The specification's general section 2.5.6 says "The unit is cm" for every
+pose type, which is true of the Euler type 01 made for MotionBuilder (a cm world); should a stream
+show its base a hundred times too far, `MvnSource(position_scale=0.01)` (`torchik live
+--mvn-position-unit cm`) reads it as cm. Segment IDs 1..23 are the body segments
 in MVN's order (`MVN_SEGMENTS`, the names MVNX files and the `xsens_to_human` map use); props and
 finger segments follow them and are not read. A large message is split over several datagrams,
 each with its own item count and an increasing datagram counter. Over TCP the same datagrams
@@ -111,28 +120,35 @@ def parse_header(data: bytes) -> Header:
 
 def parse_datagram(data: bytes) -> Datagram:
     """One datagram's header and items. MalformedDatagram saying what is wrong; UnsupportedMessage
-    for a message type other than 02, 21 and 22."""
+    for a message type other than 02, 21 and 22. A few whole-array checks per datagram (the receiver
+    parses every datagram under the GIL the tracker needs)."""
     header = parse_header(data)
-    if header.message_type not in ITEMS:
+    item = ITEMS.get(header.message_type)
+    if item is None:
         raise UnsupportedMessage(f"message type {header.message_type}")
-    item = ITEMS[header.message_type]
     payload = len(data) - HEADER.size
     if header.payload_size not in (0, payload):  # revisions before MVN 2019 leave it 0
         raise MalformedDatagram(f"payload size field {header.payload_size}, payload {payload} bytes")
-    if header.items * item.itemsize != payload:
-        raise MalformedDatagram(f"{header.items} items of {item.itemsize} bytes in a payload of {payload}")
-    items = np.frombuffer(data, item, header.items, HEADER.size)
-    limit = header.body_segments + header.props + header.finger_segments
-    if items.size and (int(items["id"].min()) < 1 or int(items["id"].max()) > limit):
-        raise MalformedDatagram(f"segment IDs {int(items['id'].min())}..{int(items['id'].max())} outside 1..{limit}")
-    names = item.names or ()
-    values = [items[name] for name in names[1:]]
-    if not all(np.isfinite(v).all() for v in values):
+    count = header.items
+    if count * item.itemsize != payload:
+        raise MalformedDatagram(f"{count} items of {item.itemsize} bytes in a payload of {payload}")
+    items = np.frombuffer(data, item, count, HEADER.size)
+    if not count:
+        return Datagram(header, items)
+    # every float of every item at once: the items' columns after the ID
+    floats = np.frombuffer(data, ">f4", count * (item.itemsize // 4), HEADER.size).reshape(count, -1)[:, 1:]
+    if not np.isfinite(floats).all():
         raise MalformedDatagram("non-finite values")
-    if "quaternion" in names and items.size:
-        norm = np.linalg.norm(items["quaternion"].astype(np.float64), axis=-1)
-        if np.abs(norm - 1.0).max() > 1e-3:
-            raise MalformedDatagram(f"quaternion of norm {norm[np.abs(norm - 1).argmax()]:.4g}")
+    ids = items["id"]
+    low, high = int(ids.min()), int(ids.max())
+    limit = header.body_segments + header.props + header.finger_segments
+    if low < 1 or high > limit:
+        raise MalformedDatagram(f"segment IDs {low}..{high} outside 1..{limit}")
+    if header.message_type != "21":  # 02 and 22 carry quaternions
+        q = items["quaternion"]
+        error = np.abs((q * q).sum(-1, dtype=np.float64) - 1.0)
+        if error.max() > 2e-3:  # |q|^2 - 1 = 2 (|q| - 1) to first order: |q| within 1e-3 of 1
+            raise MalformedDatagram(f"quaternion of norm {np.sqrt(1 + error.max()):.4g}")
     return Datagram(header, items)
 
 
@@ -180,10 +196,12 @@ class _Character:
 class Assembler:
     """Datagrams in, complete samples out: one per (character, sample counter), from every message
     type the stream carries (learnt from its first frame), split datagrams joined. Duplicates,
-    late (reordered) datagrams and malformed ones are counted in `stats` and dropped."""
+    late (reordered) datagrams and malformed ones are counted in `stats` and dropped.
+    position_scale: metres per unit of the stream's positions (see the module docstring)."""
 
-    def __init__(self) -> None:
+    def __init__(self, position_scale: float = 1.0) -> None:
         self.stats = SourceStats()
+        self.position_scale = position_scale
         self._characters: dict[int, _Character] = {}
 
     def add(self, data: bytes, arrival: float) -> list[Sample]:
@@ -239,30 +257,46 @@ class Assembler:
                 self.stats.lost += counter - c.newest - 1
             c.newest = counter
             self.stats.samples += 1
-            out.append(_sample(character, counter, frame, arrival))
+            out.append(_sample(character, counter, frame, arrival, self.position_scale))
         return out
 
 
-def _sample(character: int, counter: int, frame: _Frame, arrival: float) -> Sample:
-    """A complete frame as a Sample of the body segments (props and fingers left out)."""
+SAMPLE_FIELDS = {"02": ("position", "quaternion"), "21": ("position", "velocity"),
+                 "22": ("quaternion", "angular_velocity")}  # what a Sample takes of each message type
+
+
+def _sample(character: int, counter: int, frame: _Frame, arrival: float, position_scale: float = 1.0) -> Sample:
+    """A complete frame as a Sample of the body segments (props and fingers left out): each field
+    copied whole when the items are the body's segments in order (MVN's usual message), else
+    scattered by segment ID into rows of NaN."""
     n = frame.body_segments
     names = MVN_SEGMENTS if n == len(MVN_SEGMENTS) else tuple(f"segment{i}" for i in range(1, n + 1))
     fields: dict[str, np.ndarray] = {}
     for message_type in ("02", "21", "22"):  # later types overwrite: 22's quaternion is the pose's own
-        if message_type not in frame.parts:
+        chunks = frame.parts.get(message_type)
+        if chunks is None:
             continue
-        chunks = frame.parts[message_type]
-        items = np.concatenate([chunks[k] for k in range(len(chunks))])
-        body = items[items["id"] <= n]
-        rows = body["id"] - 1
-        for name in ("quaternion", "angular_velocity", "position", "velocity"):
-            if name in (items.dtype.names or ()):
-                column = np.full((n, 4 if name == "quaternion" else 3), np.nan)
-                column[rows] = body[name]
-                fields[name] = column
+        items = chunks[0] if len(chunks) == 1 else np.concatenate([chunks[k] for k in range(len(chunks))])
+        rows = items["id"] - 1
+        in_order = len(rows) == n and bool((rows == _ORDER[:n]).all())
+        body = rows < n
+        for name in SAMPLE_FIELDS[message_type]:
+            if in_order:
+                column = items[name].astype(np.float64)
+            else:
+                column = np.full((n, items.dtype[name].shape[0]), np.nan)
+                column[rows[body]] = items[name][body]
+            fields[name] = column
+    if position_scale != 1.0:
+        for name in ("position", "velocity"):
+            if name in fields:
+                fields[name] *= position_scale
     quaternion = fields.get("quaternion", np.full((n, 4), np.nan))
     return Sample(character, counter, frame.time_code / 1000.0, arrival, names, quaternion,
                   fields.get("angular_velocity"), fields.get("position"), fields.get("velocity"))
+
+
+_ORDER = np.arange(256)  # segment rows in order, for the usual message's check
 
 
 class MvnSource:
@@ -271,9 +305,10 @@ class MvnSource:
     Iterate for samples; `rate` is the frame rate given or, else, estimated from the time codes of
     the first two samples (the first is held back until then). `close()` ends the iteration."""
 
-    def __init__(self, url: Url, rate: float | None = None, receive_buffer: int = 1 << 22):
+    def __init__(self, url: Url, rate: float | None = None, receive_buffer: int = 1 << 22,
+                 position_scale: float = 1.0):
         self.url, self.rate = url, rate
-        self.assembler = Assembler()
+        self.assembler = Assembler(position_scale)
         self._closed = False
         try:
             if url.scheme == "udp":
