@@ -46,7 +46,7 @@ def _replay(port: int, characters: int, rate: float, duration: float) -> None:
 
 
 def measure(characters: int, rate: float, duration: float) -> dict:
-    from torchik.live.mvn import MvnSource
+    from torchik.live.mvn_source import MvnSource
     from torchik.live.sample import Url
     from torchik.method.models import TRACKED_LINKS, load_model
     from torchik.pipelines.live import LiveOptions, Publisher, Selection, track_live

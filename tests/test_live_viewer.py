@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from torchik.live.mvn import MvnSource
+from torchik.live.mvn_source import MvnSource
 from torchik.live.sample import Url
 from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.live import LiveOptions, Selection, track_live

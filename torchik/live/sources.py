@@ -14,6 +14,6 @@ def open_source(text: str, rate: float | None = None, timeout: float = 5.0, mvn_
         from .lsl import LslSource
 
         return LslSource(url, rate, timeout)
-    from .mvn import MvnSource
+    from .mvn_source import MvnSource
 
     return MvnSource(url, rate, position_scale=mvn_position_scale)

@@ -77,7 +77,7 @@ class Mailbox:
 class LiveOptions:
     """backlog: samples queued per character (1: always the newest); stall_s: silence after which a
     character leaves the batch and the source is reported stalled; gather_s: how long a step waits
-    for the rest of a frame's characters (None: a quarter of a frame); duration_s: stop after this
+    for the rest of a frame's characters (None: half a frame); duration_s: stop after this
     long; stop_when_idle_s: stop once the source has been silent this long (replays, tests); None:
     run until Ctrl-C. keep_states: keep every step's states for the trajectories (`--out`); without,
     only what the report needs."""
@@ -121,7 +121,7 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
         while True:
             # a source knows its rate before it yields its first sample (MVN estimates it from the
             # first time codes, LSL reads the stream's nominal rate)
-            gather = options.gather_s if options.gather_s is not None else 0.25 / (source.rate or 100.0)
+            gather = options.gather_s if options.gather_s is not None else 0.5 / (source.rate or 100.0)
             got = mailbox.take(loop.active, timeout=0.05, gather=gather)
             now = time.perf_counter()
             if got:
@@ -220,33 +220,37 @@ class _Loop:
         present = np.fromiter((s is not None for s in samples), bool, len(samples))
         given = [s for s in samples if s is not None]
         frames = np.fromiter((s.frame for s in given), np.int64, len(given))
-        arrival = np.fromiter((s.arrival for s in given), np.float64, len(given))
         dt = self._time_steps(present, frames)
-        state, diagnostics = self.human.step(targets, dt)
-        self.step_time.append(diagnostics.step_time)
-        self.last_frame[present] = frames
         rows = None if len(given) == len(samples) else torch.from_numpy(np.flatnonzero(present))
         characters = self.characters[present]
+        if retarget is None or robot_targets is None or self.robot_history is None:
+            state, diagnostics = self.human.step(targets, dt)
+            self._publish(state, present, None, characters, given)
+        else:  # what is published first: the robot's
+            robot, robot_diagnostics, within = retarget.step(robot_targets, dt)
+            self._publish(robot, present, within.cpu().numpy()[present], characters, given)
+            state, diagnostics = self.human.step(targets, dt)
+            self.robot_history.add(characters, frames, rows, robot, robot_diagnostics)
+        self.step_time.append(diagnostics.step_time)
+        self.last_frame[present] = frames
         self.history.add(characters, frames, rows, state, diagnostics)
-        published, publishable = state, np.ones(len(given), dtype=bool)
-        if retarget is not None and robot_targets is not None and self.robot_history is not None:
-            published, robot_diagnostics, within = retarget.step(robot_targets, dt)
-            self.robot_history.add(characters, frames, rows, published, robot_diagnostics)
-            publishable = within.cpu().numpy()[present]
-        if self.outputs.publisher is not None:
-            stamps = np.fromiter((s.time for s in given), np.float64, len(given)) if self.lsl_clock else \
-                arrival + self.clock_offset
-            self._publish(published, present, publishable, characters, stamps, arrival)
-        if self.outputs.viewer is not None:
+        if self.outputs.viewer is not None and self.outputs.viewer.due():
             self.outputs.viewer.offer(dict(time=float(frames.max()) / self.rate, characters=self.characters.copy(),
                                            state=state, diagnostics=diagnostics, targets=targets, counters=counters))
 
-    def _publish(self, state, present: np.ndarray, publishable: np.ndarray, characters: np.ndarray,
-                 stamps: np.ndarray, arrival: np.ndarray) -> None:
-        """The values of the rows with a sample (and, retargeting, within the robot's limits) on
-        their outlets; each one's latency from its datagram's arrival to the push's return."""
+    def _publish(self, state, present: np.ndarray, publishable: np.ndarray | None, characters: np.ndarray,
+                 given: list[Sample]) -> None:
+        """The values of the rows with a sample (and `publishable` [m] of those, or all) on their
+        outlets, stamped with the samples' LSL times (or their arrival, on LSL's clock); each one's
+        latency from its datagram's arrival to the push's return."""
         publisher = self.outputs.publisher
-        assert publisher is not None
+        if publisher is None:
+            return
+        arrival = np.fromiter((s.arrival for s in given), np.float64, len(given))
+        stamps = np.fromiter((s.time for s in given), np.float64, len(given)) if self.lsl_clock else \
+            arrival + self.clock_offset
+        if publishable is None:
+            publishable = np.ones(len(given), dtype=bool)
         rows_present = np.flatnonzero(present)[publishable]
         rows = None if len(rows_present) == len(present) else torch.from_numpy(rows_present)
         done = publisher.publish(characters[publishable].tolist(), publisher.values(state, rows), stamps[publishable])

@@ -74,13 +74,17 @@ class LiveViewer:
                                         name="torchik-live-viewer")
         self._process.start()
 
-    def offer(self, snapshot: dict) -> None:
-        """The loop's newest step (time, characters [B], state, diagnostics, targets, counters: a
-        function); queued when a display period has passed since the last."""
+    def due(self) -> bool:
+        """Whether a display period has passed since the last step offered (then the next is)."""
         now = time.perf_counter()
         if now - self._last < self.period:
-            return
+            return False
         self._last = now
+        return True
+
+    def offer(self, snapshot: dict) -> None:
+        """A step (time, characters [B], state, diagnostics, targets, counters: a function), queued
+        unless the logger is behind. The loop offers one when `due()`."""
         try:
             self._queue.put_nowait(_arrays(snapshot))
             self.sent += 1
