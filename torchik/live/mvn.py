@@ -67,7 +67,9 @@ ITEMS = {  # message type -> one item's fields, big-endian
     "22": np.dtype([("id", ">i4"), ("quaternion", ">f4", 4), ("angular_velocity", ">f4", 3),
                     ("angular_acceleration", ">f4", 3)]),
 }
-QUATERNION_COLUMNS = {"02": slice(4, 8), "22": slice(1, 5)}  # an item's quaternion, in 4-byte columns
+COLUMNS = {kind: {name: slice(offset // 4, offset // 4 + (item[name].shape or (1,))[0])
+                  for name, (_, offset) in (item.fields or {}).items() if name != "id"}
+           for kind, item in ITEMS.items()}  # per message type, each field's 4-byte columns in an item
 MAX_PENDING = 8  # frames of a character held while their datagrams arrive; older ones are given up
 
 
@@ -102,8 +104,14 @@ class Header(NamedTuple):
 
 
 class Datagram(NamedTuple):
+    """A datagram's header and items: as sent (structured, big-endian: ITEMS[header.message_type]),
+    their values [items, 4-byte columns] as native float32 (COLUMNS says which columns are which
+    field; the ID column's floats are meaningless) and their segment rows (ID - 1) [items]."""
+
     header: Header
-    items: np.ndarray  # structured, ITEMS[header.message_type]
+    items: np.ndarray
+    values: np.ndarray
+    rows: np.ndarray
 
 
 def parse_header(data: bytes) -> Header:
@@ -130,26 +138,26 @@ def parse_datagram(data: bytes) -> Datagram:
     if count * item.itemsize != payload:
         raise MalformedDatagram(f"{count} items of {item.itemsize} bytes in a payload of {payload}")
     items = np.frombuffer(data, item, count, HEADER.size)
-    if not count:
-        return Datagram(header, items)
-    # every value of every item at once, in native float32 (numpy is slower on big-endian data); the
-    # IDs' bytes read as floats are denormals, finite: one check covers all
+    # every value of every item at once, in native types (numpy is several times slower on
+    # big-endian, strided data); the IDs' bytes read as floats are denormals, finite: one check
     width = item.itemsize // 4
     values = np.frombuffer(data, ">f4", count * width, HEADER.size).astype(np.float32).reshape(count, width)
+    rows = np.frombuffer(data, ">i4", count * width, HEADER.size)[::width].astype(np.int64) - 1
+    if not count:
+        return Datagram(header, items, values, rows)
     if not np.isfinite(values).all():
         raise MalformedDatagram("non-finite values (or a negative segment ID)")
-    ids = items["id"]
-    low, high = int(ids.min()), int(ids.max())
+    low, high = int(rows.min()) + 1, int(rows.max()) + 1
     limit = header.body_segments + header.props + header.finger_segments
     if low < 1 or high > limit:
         raise MalformedDatagram(f"segment IDs {low}..{high} outside 1..{limit}")
-    columns = QUATERNION_COLUMNS.get(header.message_type)
+    columns = COLUMNS[header.message_type].get("quaternion")
     if columns is not None:
         q = values[:, columns]
         error = np.abs(np.einsum("ij,ij->i", q, q) - 1.0).max()
         if error > 2e-3:  # |q|^2 - 1 = 2 (|q| - 1) to first order: |q| within 1e-3 of 1
             raise MalformedDatagram(f"quaternion of norm {np.sqrt(1 + error):.4g}")
-    return Datagram(header, items)
+    return Datagram(header, items, values, rows)
 
 
 def encode_datagrams(message_type: str, sample_counter: int, time_code: int, character: int, ids: np.ndarray,
@@ -174,11 +182,11 @@ def encode_datagrams(message_type: str, sample_counter: int, time_code: int, cha
 
 @dataclass
 class _Frame:
-    """A frame's datagrams as they arrive: per message type, the items by datagram index."""
+    """A frame's datagrams as they arrive: per message type, the datagrams by their index."""
 
     time_code: int
     body_segments: int
-    parts: dict[str, dict[int, np.ndarray]] = field(default_factory=dict)
+    parts: dict[str, dict[int, Datagram]] = field(default_factory=dict)
     last: dict[str, int] = field(default_factory=dict)
 
     def complete(self, types) -> bool:
@@ -229,7 +237,7 @@ class Assembler:
         if h.part in parts:
             self.stats.duplicates += 1
             return []
-        parts[h.part] = datagram.items
+        parts[h.part] = datagram
         if h.last:
             frame.last[h.message_type] = h.part
         c.types.add(h.message_type)
@@ -276,16 +284,20 @@ def _sample(character: int, counter: int, frame: _Frame, arrival: float, positio
         chunks = frame.parts.get(message_type)
         if chunks is None:
             continue
-        items = chunks[0] if len(chunks) == 1 else np.concatenate([chunks[k] for k in range(len(chunks))])
-        rows = items["id"] - 1
+        if len(chunks) == 1:
+            values, rows = chunks[0].values, chunks[0].rows
+        else:
+            values = np.concatenate([chunks[k].values for k in range(len(chunks))])
+            rows = np.concatenate([chunks[k].rows for k in range(len(chunks))])
         in_order = len(rows) == n and bool((rows == _ORDER[:n]).all())
         body = rows < n
         for name in SAMPLE_FIELDS[message_type]:
+            columns = values[:, COLUMNS[message_type][name]]
             if in_order:
-                column = items[name].astype(np.float64)
+                column = columns.astype(np.float64)
             else:
-                column = np.full((n, items.dtype[name].shape[0]), np.nan)
-                column[rows[body]] = items[name][body]
+                column = np.full((n, columns.shape[1]), np.nan)
+                column[rows[body]] = columns[body]
             fields[name] = column
     if position_scale != 1.0:
         for name in ("position", "velocity"):
