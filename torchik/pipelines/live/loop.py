@@ -160,8 +160,8 @@ def _receive(source: Source, mailbox: Mailbox) -> None:
 
 def _counters(source: Source, mailbox: Mailbox, loop: "_Loop") -> dict:
     """The live counters: the source's (datagrams received, samples, lost, late, duplicates,
-    malformed, ...), samples skipped, stalls, active characters, and the latency of the last
-    second's published samples (ms, or None)."""
+    malformed, ...), samples skipped, stalls, active characters, and the latency of the samples
+    published in the last 200 steps (ms, or None)."""
     recent = np.concatenate(loop.latency[-200:]) if loop.latency else np.empty(0)
     return dict(source.stats.as_dict(), skipped=sum(mailbox.skipped.values()), stalls=loop.stalls,
                 characters=len(loop.active), latency_ms=milliseconds(recent))
