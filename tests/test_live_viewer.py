@@ -18,6 +18,7 @@ from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.live import LiveOptions, Selection, track_live
 from torchik.pipelines.live.viewer import COUNTERS, LiveViewer, ViewerSpec
 from torchik.pipelines.replay import Faults, replay
+from torchik.pipelines.visuals import visuals
 from torchik.synthetic.scenarios import scenario
 
 rerun = pytest.importorskip("rerun")
@@ -30,7 +31,7 @@ def test_a_saved_session_holds_every_character_and_the_final_counters(tmp_path):
     model = load_model("human66")
     walk = scenario("walking", model, LINKS, duration=1.0, rate=100.0)
     path = tmp_path / "live.rrd"
-    viewer = LiveViewer(ViewerSpec(model.name, human_urdf(66), LINKS, path=str(path)), rate=20.0)
+    viewer = LiveViewer(ViewerSpec(model, LINKS, visuals(human_urdf(66)), path=str(path)), rate=20.0)
     source = MvnSource(Url("udp", "127.0.0.1", 0))
     sender = threading.Thread(target=replay, args=(walk, Url("udp", "127.0.0.1", source.address[1]), 2.0, 2,
                                                    Faults(duplicate=0.05, seed=2)), kwargs=dict(lead_in_s=0.1))

@@ -164,9 +164,11 @@ def _outputs(args: argparse.Namespace, model, links, rate):
     viewer = None
     if args.viewer or args.rrd:
         from ..pipelines.live.viewer import LiveViewer, ViewerSpec
+        from ..pipelines.visuals import visuals
 
-        spec = ViewerSpec(model.name, str(model_urdf(args.model)), tuple(links), spawn=args.viewer == "spawn",
-                          url=None if args.viewer in (None, "spawn") else args.viewer, path=args.rrd)
+        spec = ViewerSpec(model.to(device="cpu"), tuple(links), visuals(model_urdf(args.model)),
+                          spawn=args.viewer == "spawn", url=None if args.viewer in (None, "spawn") else args.viewer,
+                          path=args.rrd)
         viewer = LiveViewer(spec, args.viewer_rate)
     return publisher, viewer, retarget
 

@@ -67,8 +67,8 @@ ITEMS = {  # message type -> one item's fields, big-endian
     "22": np.dtype([("id", ">i4"), ("quaternion", ">f4", 4), ("angular_velocity", ">f4", 3),
                     ("angular_acceleration", ">f4", 3)]),
 }
-COLUMNS = {kind: {name: slice(offset // 4, offset // 4 + (item[name].shape or (1,))[0])
-                  for name, (_, offset) in (item.fields or {}).items() if name != "id"}
+COLUMNS = {kind: {name: slice(where[1] // 4, where[1] // 4 + (item[name].shape or (1,))[0])
+                  for name, where in (item.fields or {}).items() if name != "id"}
            for kind, item in ITEMS.items()}  # per message type, each field's 4-byte columns in an item
 MAX_PENDING = 8  # frames of a character held while their datagrams arrive; older ones are given up
 

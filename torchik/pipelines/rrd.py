@@ -126,12 +126,15 @@ class StepLogger:
     computed or sent once."""
 
     def __init__(self, rec: rr.RecordingStream, model: KinematicModel, links: Sequence[str],
-                 position_links: Sequence[str] | None = None, urdf: str | Path | None = None, axis_length: float = 0.08):
+                 position_links: Sequence[str] | None = None, urdf: str | Path | None = None, axis_length: float = 0.08,
+                 shapes: dict[str, list[Visual]] | None = None):
+        """urdf: whose visuals draw the body (default the model's file); shapes: those visuals, read
+        already (`visuals(urdf)`)."""
         self.rec, self.model, self.links = rec, model, tuple(links)
         self.position_links = tuple(position_links) if position_links is not None else (model.base_link,)
         if urdf is None and Path(model.source).is_file():
             urdf = model.source
-        self.shapes = visuals(urdf) if urdf is not None else {}
+        self.shapes = shapes if shapes is not None else visuals(urdf) if urdf is not None else {}
         self.bones = _bones(model, self.links)
         self.axis_length = axis_length
         self.logged: set[int] = set()

@@ -27,6 +27,7 @@ from ...errors import InputError, optional
 from ...io.files import replacing
 from ...method.kinematics import KinematicModel
 from ...method.state import PER_BATCH, PER_SUBJECT, TargetSequence, Trajectory
+from ..visuals import Visual
 
 COUNTERS = ("datagrams", "samples", "skipped", "lost", "late", "duplicates", "malformed", "incomplete", "stalls",
             "characters")  # the live counters logged at /live/<name>; datagrams: received
@@ -43,13 +44,13 @@ def viewer_url(text: str) -> str:
 
 @dataclass(frozen=True)
 class ViewerSpec:
-    """What the logger process needs: the tracked model (its name and URDF, a file or its text: the
-    logger compiles its own copy, for the link poses and the visuals) and its tracked links; where to
+    """What the logger process needs: the tracked model (on the CPU: the logger computes the link
+    poses) and its tracked links, the visuals that draw the body (`visuals(urdf)`), and where to
     send: spawn a viewer on `port`, connect to `url`, save to `path`."""
 
-    model_name: str
-    urdf: str
+    model: KinematicModel
     links: tuple[str, ...]
+    shapes: dict[str, list[Visual]]
     spawn: bool = False
     url: str | None = None
     path: str | None = None
@@ -142,8 +143,7 @@ def _serve(steps, spec: ViewerSpec, part: str | None) -> None:
         sinks.append(rr.FileSink(part))
         rec.send_recording_name(Path(spec.path or part).stem)
     rec.set_sinks(*sinks)
-    model = KinematicModel.from_urdf(spec.urdf, name=spec.model_name)
-    logger = StepLogger(rec, model, spec.links, urdf=spec.urdf)
+    logger = StepLogger(rec, spec.model, spec.links, shapes=spec.shapes)
     laid_out, last = False, 0.0
     while (step := steps.get()) is not None:
         last = step.get("time", last)  # the final counters: at the last step's time
