@@ -97,12 +97,14 @@ class LiveViewer:
         is queued: it may still be starting) and move the file into place."""
         deadline = time.perf_counter() + wait_s
         items = ([dict(final=True, counters=_numbers(counters))] if counters is not None else []) + [None]
-        try:
-            for item in items:
-                self._queue.put(item, timeout=max(deadline - time.perf_counter(), 0.01))
-            self._process.join(timeout=max(deadline - time.perf_counter(), 0.01))
-        except queue.Full:
-            pass
+        for item in items:
+            while self._process.is_alive() and time.perf_counter() < deadline:  # a dead logger takes nothing
+                try:
+                    self._queue.put(item, timeout=0.2)
+                    break
+                except queue.Full:
+                    continue
+        self._process.join(timeout=max(deadline - time.perf_counter(), 0.01))
         if self._process.is_alive():  # stuck (a viewer that never answers): the file may lack its end
             self._process.terminate()
         with contextlib.suppress(FileNotFoundError):  # the logger died before writing: no file to move
