@@ -48,3 +48,43 @@ def test_help_shows_examples(capsys, command):
     with pytest.raises(SystemExit):
         main([command, "--help"])
     assert f"torchik {command} " in capsys.readouterr().out.split("examples:")[1]
+
+
+def test_live_help_shows_the_viewer_the_recording_and_retargeting(capsys):
+    with pytest.raises(SystemExit):
+        main(["live", "--help"])
+    examples = capsys.readouterr().out.split("examples:")[1]
+    assert all(option in examples for option in ("--viewer", "--viewer rerun+http://", "--rrd", "--retarget icub"))
+
+
+def test_live_retargets_to_icub_and_writes_its_trajectory_within_every_limit(cli, tmp_path):
+    import threading
+
+    import numpy as np
+    import torch
+
+    from torchik.live.sample import Url
+    from torchik.method.models import TRACKED_LINKS, load_model
+    from torchik.pipelines.replay import replay
+    from torchik.pipelines.retarget import LIMIT_TOLERANCE
+    from torchik.synthetic.scenarios import scenario
+
+    walk = scenario("walking", load_model("human66"), TRACKED_LINKS["human66"], duration=0.6, rate=100.0)
+    free = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    free.bind(("127.0.0.1", 0))
+    port = free.getsockname()[1]
+    free.close()
+    sender = threading.Thread(target=replay, args=(walk, Url("udp", "127.0.0.1", port), 2.0), kwargs=dict(lead_in_s=1.0))
+    sender.start()
+    out = tmp_path / "icub.npz"
+    code, _, err = cli("live", "--from", f"udp://127.0.0.1:{port}", "--retarget", "icub", "--out", out,
+                       "--backlog", "1000", "--stop-when-idle", "0.5", "--quiet")
+    sender.join()
+    assert code == 0, err
+    icub = load_model("icub")
+    with np.load(out) as written:
+        s = torch.from_numpy(written["joint_positions"])
+        assert list(written["joint_names"]) == list(icub.joint_names) and len(s) == len(walk.time)
+    excess = torch.maximum(s - icub.upper, icub.lower - s).max()
+    coupled = (s @ icub.linear_limits.A.T - icub.linear_limits.b).max()
+    assert float(excess) <= LIMIT_TOLERANCE and float(coupled) <= LIMIT_TOLERANCE

@@ -12,7 +12,7 @@ import torch
 
 from torchik.io import read
 from torchik.io.maps import load_map, map_recording
-from torchik.live.mvn import MvnSource
+from torchik.live.mvn_source import MvnSource
 from torchik.live.sample import Url
 from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.pipelines.live import LiveOptions, Selection, track_live

@@ -114,3 +114,11 @@ def test_stream_urls_are_checked_with_a_message_that_shows_valid_ones():
     for text in ("http://x", "udp://host:99999", "lsl://", "udp://h:1/path"):
         with pytest.raises(InputError):
             parse_url(text)
+
+
+def test_positions_streamed_in_cm_are_read_as_metres_when_told():
+    metres = feed(Assembler(), frame(1) + frame(2))
+    centimetres = feed(Assembler(position_scale=0.01), frame(1) + frame(2))
+    np.testing.assert_allclose(centimetres[0].position[0], 0.01 * metres[0].position[0])
+    np.testing.assert_allclose(centimetres[0].velocity[0], 0.01 * metres[0].velocity[0])
+    np.testing.assert_array_equal(centimetres[0].quaternion, metres[0].quaternion)

@@ -175,7 +175,10 @@ def test_outputs_are_orthonormal_whichever_integrator():
         assert float((links_R.transpose(-1, -2) @ links_R - eye).abs().max()) < 1e-12
 
 
-def test_a_batch_of_8_subjects_equals_8_single_runs():
+def test_a_batch_of_8_subjects_equals_8_single_runs(monkeypatch):
+    from torchik.method.structure import BatchSetup
+
+    monkeypatch.setattr(BatchSetup, "TREE_FROM", 8)  # the batch solved on the tree's structure
     subjects = [HumanSubject(height=1.5 + 0.05 * i, mass=55 + 3 * i) for i in range(8)]
     models = [load_model("human48", s) for s in subjects]
     stacked = KinematicModel.stack(models)

@@ -167,4 +167,7 @@ class JointOutlet:
         self.outlet = pylsl().StreamOutlet(info)
 
     def push(self, values: np.ndarray, stamp: float) -> None:
-        self.outlet.push_sample(values, stamp)
+        """values [C] or [1,C] float64, stamped `stamp` (LSL's clock). As a chunk of one sample: pylsl
+        hands a C-contiguous float64 array to liblsl as it is, where push_sample would build a
+        ctypes array value by value."""
+        self.outlet.push_chunk(np.ascontiguousarray(values, dtype=np.float64).reshape(1, -1), stamp)

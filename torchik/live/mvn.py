@@ -1,5 +1,5 @@
 """The Xsens MVN real-time network stream: datagrams parsed, joined into one `Sample` per character
-and frame, received over UDP or TCP, and written (for `torchik replay`).
+and frame (the receiver over UDP or TCP: `mvn_source.py`), and written (for `torchik replay`).
 
 Format: Xsens Technologies, "MVN real-time network streaming protocol specification" (revisions
 E to O, MVN Analyze/Animate 3.3 to 2022). Every datagram is a 24-byte big-endian header and a
@@ -27,8 +27,17 @@ Items, per segment, big-endian (segment ID i32, then float32 values):
 | 21 | linear segment kinematics: ID, position, velocity, acceleration (3 each) | 40 |
 | 22 | angular segment kinematics: ID, quaternion re i j k, angular velocity, angular acceleration (3 each) | 44 |
 
-Positions m, velocities m/s, angular velocities rad/s, all in MVN's Z-up world frame; the
-quaternion turns the segment frame into the world frame. Segment IDs 1..23 are the body segments
+Units, checked against the sources (revision N of the specification, 2018; the MVN user manual
+MV0319P; Xsens' streaming sample code): the quaternion is (re, i, j, k) = (w, x, y, z), normalised,
+segment to world (spec 2.5.3, 2.5.8, 2.7.3), all in MVN's Z-up, right-handed world frame. Angular
+velocities are rad/s: Xsens' own sample receiver converts the type 22 values with
+XsMath_rad2deg to print them. Positions are metres (velocities m/s): the user manual's network
+streaming table says of the quaternion pose "position units are in meters", as does Xsens'
+knowledge base ("Network Streamer in MVN"), and MVNX files, whose recordings replay as these
+streams, are in metres. The specification's general section 2.5.6 says "The unit is cm" for every
+pose type, which is true of the Euler type 01 made for MotionBuilder (a cm world); should a stream
+show its base a hundred times too far, `MvnSource(position_scale=0.01)` (`torchik live
+--mvn-position-unit cm`) reads it as cm. Segment IDs 1..23 are the body segments
 in MVN's order (`MVN_SEGMENTS`, the names MVNX files and the `xsens_to_human` map use); props and
 finger segments follow them and are not read. A large message is split over several datagrams,
 each with its own item count and an increasing datagram counter. Over TCP the same datagrams
@@ -37,17 +46,13 @@ follow each other on the connection.
 
 from __future__ import annotations
 
-import errno
-import socket
 import struct
-import time
 from dataclasses import dataclass, field
-from typing import Iterator, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
-from ..errors import InputError
-from .sample import Sample, SourceStats, Url, snap_rate
+from .sample import Sample, SourceStats
 
 MVN_SEGMENTS = ("Pelvis", "L5", "L3", "T12", "T8", "Neck", "Head", "RightShoulder", "RightUpperArm",
                 "RightForeArm", "RightHand", "LeftShoulder", "LeftUpperArm", "LeftForeArm", "LeftHand",
@@ -62,6 +67,9 @@ ITEMS = {  # message type -> one item's fields, big-endian
     "22": np.dtype([("id", ">i4"), ("quaternion", ">f4", 4), ("angular_velocity", ">f4", 3),
                     ("angular_acceleration", ">f4", 3)]),
 }
+COLUMNS = {kind: {name: slice(where[1] // 4, where[1] // 4 + (item[name].shape or (1,))[0])
+                  for name, where in (item.fields or {}).items() if name != "id"}
+           for kind, item in ITEMS.items()}  # per message type, each field's 4-byte columns in an item
 MAX_PENDING = 8  # frames of a character held while their datagrams arrive; older ones are given up
 
 
@@ -96,8 +104,14 @@ class Header(NamedTuple):
 
 
 class Datagram(NamedTuple):
+    """A datagram's header and items: as sent (structured, big-endian: ITEMS[header.message_type]),
+    their values [items, 4-byte columns] as native float32 (COLUMNS says which columns are which
+    field; the ID column's floats are meaningless) and their segment rows (ID - 1) [items]."""
+
     header: Header
-    items: np.ndarray  # structured, ITEMS[header.message_type]
+    items: np.ndarray
+    values: np.ndarray
+    rows: np.ndarray
 
 
 def parse_header(data: bytes) -> Header:
@@ -111,29 +125,39 @@ def parse_header(data: bytes) -> Header:
 
 def parse_datagram(data: bytes) -> Datagram:
     """One datagram's header and items. MalformedDatagram saying what is wrong; UnsupportedMessage
-    for a message type other than 02, 21 and 22."""
+    for a message type other than 02, 21 and 22. A few whole-array checks per datagram (the receiver
+    parses every datagram under the GIL the tracker needs)."""
     header = parse_header(data)
-    if header.message_type not in ITEMS:
+    item = ITEMS.get(header.message_type)
+    if item is None:
         raise UnsupportedMessage(f"message type {header.message_type}")
-    item = ITEMS[header.message_type]
     payload = len(data) - HEADER.size
     if header.payload_size not in (0, payload):  # revisions before MVN 2019 leave it 0
         raise MalformedDatagram(f"payload size field {header.payload_size}, payload {payload} bytes")
-    if header.items * item.itemsize != payload:
-        raise MalformedDatagram(f"{header.items} items of {item.itemsize} bytes in a payload of {payload}")
-    items = np.frombuffer(data, item, header.items, HEADER.size)
+    count = header.items
+    if count * item.itemsize != payload:
+        raise MalformedDatagram(f"{count} items of {item.itemsize} bytes in a payload of {payload}")
+    items = np.frombuffer(data, item, count, HEADER.size)
+    # every value of every item at once, in native types (numpy is several times slower on
+    # big-endian, strided data); the IDs' bytes read as floats are denormals, finite: one check
+    width = item.itemsize // 4
+    values = np.frombuffer(data, ">f4", count * width, HEADER.size).astype(np.float32).reshape(count, width)
+    rows = np.frombuffer(data, ">i4", count * width, HEADER.size)[::width].astype(np.int64) - 1
+    if not count:
+        return Datagram(header, items, values, rows)
+    if not np.isfinite(values).all():
+        raise MalformedDatagram("non-finite values (or a negative segment ID)")
+    low, high = int(rows.min()) + 1, int(rows.max()) + 1
     limit = header.body_segments + header.props + header.finger_segments
-    if items.size and (int(items["id"].min()) < 1 or int(items["id"].max()) > limit):
-        raise MalformedDatagram(f"segment IDs {int(items['id'].min())}..{int(items['id'].max())} outside 1..{limit}")
-    names = item.names or ()
-    values = [items[name] for name in names[1:]]
-    if not all(np.isfinite(v).all() for v in values):
-        raise MalformedDatagram("non-finite values")
-    if "quaternion" in names and items.size:
-        norm = np.linalg.norm(items["quaternion"].astype(np.float64), axis=-1)
-        if np.abs(norm - 1.0).max() > 1e-3:
-            raise MalformedDatagram(f"quaternion of norm {norm[np.abs(norm - 1).argmax()]:.4g}")
-    return Datagram(header, items)
+    if low < 1 or high > limit:
+        raise MalformedDatagram(f"segment IDs {low}..{high} outside 1..{limit}")
+    columns = COLUMNS[header.message_type].get("quaternion")
+    if columns is not None:
+        q = values[:, columns]
+        error = np.abs(np.einsum("ij,ij->i", q, q) - 1.0).max()
+        if error > 2e-3:  # |q|^2 - 1 = 2 (|q| - 1) to first order: |q| within 1e-3 of 1
+            raise MalformedDatagram(f"quaternion of norm {np.sqrt(1 + error):.4g}")
+    return Datagram(header, items, values, rows)
 
 
 def encode_datagrams(message_type: str, sample_counter: int, time_code: int, character: int, ids: np.ndarray,
@@ -158,11 +182,11 @@ def encode_datagrams(message_type: str, sample_counter: int, time_code: int, cha
 
 @dataclass
 class _Frame:
-    """A frame's datagrams as they arrive: per message type, the items by datagram index."""
+    """A frame's datagrams as they arrive: per message type, the datagrams by their index."""
 
     time_code: int
     body_segments: int
-    parts: dict[str, dict[int, np.ndarray]] = field(default_factory=dict)
+    parts: dict[str, dict[int, Datagram]] = field(default_factory=dict)
     last: dict[str, int] = field(default_factory=dict)
 
     def complete(self, types) -> bool:
@@ -180,10 +204,12 @@ class _Character:
 class Assembler:
     """Datagrams in, complete samples out: one per (character, sample counter), from every message
     type the stream carries (learnt from its first frame), split datagrams joined. Duplicates,
-    late (reordered) datagrams and malformed ones are counted in `stats` and dropped."""
+    late (reordered) datagrams and malformed ones are counted in `stats` and dropped.
+    position_scale: metres per unit of the stream's positions (see the module docstring)."""
 
-    def __init__(self) -> None:
+    def __init__(self, position_scale: float = 1.0) -> None:
         self.stats = SourceStats()
+        self.position_scale = position_scale
         self._characters: dict[int, _Character] = {}
 
     def add(self, data: bytes, arrival: float) -> list[Sample]:
@@ -211,7 +237,7 @@ class Assembler:
         if h.part in parts:
             self.stats.duplicates += 1
             return []
-        parts[h.part] = datagram.items
+        parts[h.part] = datagram
         if h.last:
             frame.last[h.message_type] = h.part
         c.types.add(h.message_type)
@@ -239,135 +265,50 @@ class Assembler:
                 self.stats.lost += counter - c.newest - 1
             c.newest = counter
             self.stats.samples += 1
-            out.append(_sample(character, counter, frame, arrival))
+            out.append(_sample(character, counter, frame, arrival, self.position_scale))
         return out
 
 
-def _sample(character: int, counter: int, frame: _Frame, arrival: float) -> Sample:
-    """A complete frame as a Sample of the body segments (props and fingers left out)."""
+SAMPLE_FIELDS = {"02": ("position", "quaternion"), "21": ("position", "velocity"),
+                 "22": ("quaternion", "angular_velocity")}  # what a Sample takes of each message type
+
+
+def _sample(character: int, counter: int, frame: _Frame, arrival: float, position_scale: float = 1.0) -> Sample:
+    """A complete frame as a Sample of the body segments (props and fingers left out): each field
+    copied whole when the items are the body's segments in order (MVN's usual message), else
+    scattered by segment ID into rows of NaN."""
     n = frame.body_segments
     names = MVN_SEGMENTS if n == len(MVN_SEGMENTS) else tuple(f"segment{i}" for i in range(1, n + 1))
     fields: dict[str, np.ndarray] = {}
     for message_type in ("02", "21", "22"):  # later types overwrite: 22's quaternion is the pose's own
-        if message_type not in frame.parts:
+        chunks = frame.parts.get(message_type)
+        if chunks is None:
             continue
-        chunks = frame.parts[message_type]
-        items = np.concatenate([chunks[k] for k in range(len(chunks))])
-        body = items[items["id"] <= n]
-        rows = body["id"] - 1
-        for name in ("quaternion", "angular_velocity", "position", "velocity"):
-            if name in (items.dtype.names or ()):
-                column = np.full((n, 4 if name == "quaternion" else 3), np.nan)
-                column[rows] = body[name]
-                fields[name] = column
+        if len(chunks) == 1:
+            values, rows = chunks[0].values, chunks[0].rows
+        else:
+            values = np.concatenate([chunks[k].values for k in range(len(chunks))])
+            rows = np.concatenate([chunks[k].rows for k in range(len(chunks))])
+        in_order = len(rows) == n and bool((rows == _ORDER[:n]).all())
+        body = rows < n
+        for name in SAMPLE_FIELDS[message_type]:
+            columns = values[:, COLUMNS[message_type][name]]
+            if in_order:
+                column = columns.astype(np.float64)
+            else:
+                column = np.full((n, columns.shape[1]), np.nan)
+                column[rows[body]] = columns[body]
+            fields[name] = column
+    if position_scale != 1.0:
+        for name in ("position", "velocity"):
+            if name in fields:
+                fields[name] *= position_scale
     quaternion = fields.get("quaternion", np.full((n, 4), np.nan))
     return Sample(character, counter, frame.time_code / 1000.0, arrival, names, quaternion,
                   fields.get("angular_velocity"), fields.get("position"), fields.get("velocity"))
 
 
-class MvnSource:
-    """An MVN stream received over UDP or TCP (MVN connects to the receiver), listening on
-    url.host:url.port.
-    Iterate for samples; `rate` is the frame rate given or, else, estimated from the time codes of
-    the first two samples (the first is held back until then). `close()` ends the iteration."""
-
-    def __init__(self, url: Url, rate: float | None = None, receive_buffer: int = 1 << 22):
-        self.url, self.rate = url, rate
-        self.assembler = Assembler()
-        self._closed = False
-        try:
-            if url.scheme == "udp":
-                self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-                self.socket.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, receive_buffer)
-            else:  # MVN connects to the receiver it is told to stream to
-                self.socket = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-            self.socket.bind((url.host, url.port))
-            if url.scheme == "tcp":
-                self.socket.listen(1)
-        except OSError as exc:
-            reason = "the port is in use" if exc.errno == errno.EADDRINUSE else exc.strerror or str(exc)
-            raise InputError(f"cannot listen on {url}: {reason}") from None
-        self.socket.settimeout(0.2)  # how soon close() is noticed
-
-    @property
-    def stats(self) -> SourceStats:
-        return self.assembler.stats
-
-    @property
-    def address(self) -> tuple[str, int]:
-        """Where the source listens: the port when url.port was 0."""
-        return self.socket.getsockname()
-
-    def close(self) -> None:
-        self._closed = True
-
-    def _datagrams(self) -> Iterator[tuple[bytes, float]]:
-        if self.url.scheme == "udp":
-            while not self._closed:
-                try:
-                    data = self.socket.recv(65536)
-                except TimeoutError:
-                    continue
-                yield data, time.perf_counter()
-            return
-        connection = None
-        while connection is None and not self._closed:
-            try:
-                connection, _ = self.socket.accept()
-            except TimeoutError:
-                continue
-        if connection is None:
-            return
-        connection.settimeout(0.2)
-        buffer = b""
-        while not self._closed:  # TCP: datagrams back to back, each as long as its header says
-            try:
-                chunk = connection.recv(65536)
-            except TimeoutError:
-                continue
-            if not chunk:
-                return
-            buffer += chunk
-            while len(buffer) >= HEADER.size:
-                try:
-                    header = parse_header(buffer)
-                    size = header.payload_size or header.items * ITEMS.get(header.message_type, ITEMS["02"]).itemsize
-                except MalformedDatagram:  # lost framing: nothing after it can be trusted until resynchronised
-                    start = buffer.find(MAGIC, 1)
-                    self.assembler.stats.malformed += 1
-                    buffer = buffer[start:] if start > 0 else b""
-                    continue
-                if len(buffer) < HEADER.size + size:
-                    break
-                yield buffer[:HEADER.size + size], time.perf_counter()
-                buffer = buffer[HEADER.size + size:]
-        connection.close()
-
-    def __iter__(self) -> Iterator[Sample]:
-        held: list[Sample] = []
-        try:
-            for data, arrival in self._datagrams():
-                for sample in self.assembler.add(data, arrival):
-                    if self.rate is None:
-                        held.append(sample)
-                        self.rate = _estimate_rate(held)
-                        if self.rate is None:
-                            continue
-                        yield from held
-                        held = []
-                    else:
-                        yield sample
-        finally:
-            self.socket.close()
-
-
-def _estimate_rate(samples: list[Sample]) -> float | None:
-    """The frame rate from the time codes of two samples of one character, or None before there are two."""
-    first = samples[0]
-    for s in samples[1:]:
-        if s.character == first.character and s.time > first.time:
-            return snap_rate((s.frame - first.frame) / (s.time - first.time))
-    return None
+_ORDER = np.arange(256)  # segment rows in order, for the usual message's check
 
 
 def rotations(quaternion: np.ndarray) -> np.ndarray:

@@ -5,14 +5,15 @@ from __future__ import annotations
 from .sample import Source, parse_url
 
 
-def open_source(text: str, rate: float | None = None, timeout: float = 5.0) -> Source:
+def open_source(text: str, rate: float | None = None, timeout: float = 5.0, mvn_position_scale: float = 1.0) -> Source:
     """The source a URL names (udp, tcp: an MVN stream; lsl: a Mocap stream), `rate` its frame
-    rate when known (else the source finds it). timeout: how long an LSL stream is looked for."""
+    rate when known (else the source finds it). timeout: how long an LSL stream is looked for;
+    mvn_position_scale: metres per unit of an MVN stream's positions (`torchik.live.mvn`)."""
     url = parse_url(text)
     if url.scheme == "lsl":
         from .lsl import LslSource
 
         return LslSource(url, rate, timeout)
-    from .mvn import MvnSource
+    from .mvn_source import MvnSource
 
-    return MvnSource(url, rate)
+    return MvnSource(url, rate, position_scale=mvn_position_scale)

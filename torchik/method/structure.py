@@ -72,7 +72,11 @@ class BatchSetup:
     and the kinematics' output buffers (None for rotations only)."""
 
     STACK_BELOW: ClassVar[int] = 16  # batches up to this size evaluate both configurations of a step in one call
-    TREE_FROM: ClassVar[int] = 8  # from this batch size the batched backend solves with the tree structure, below densely
+    # from this batch size the batched backend solves with the tree structure, below densely: the
+    # tree's leaves-first elimination costs a fixed time per level of the tree (some 5 ms a step for
+    # Human66 on one core of this project's CPU), a dense Cholesky of B matrices less up to about
+    # 96 subjects (Human66 at B = 8: 3-4 ms a step dense, 7-11 ms on the tree; equal at B = 96)
+    TREE_FROM: ClassVar[int] = 96
 
     size: int
     target_shapes: tuple

@@ -34,6 +34,8 @@ from ..method.kinematics import KinematicModel
 from ..method.limits import LimitSettings
 from ..method.models import load_model
 from ..method.settings import TrackerSettings
+from ..method.state import State
+from ..method.targets import Targets
 from ..method.tracker import DynamicalIK
 from .evaluation import known_targets, summary, tracking_errors
 
@@ -84,11 +86,48 @@ def resample(recording: Recording, rate: float) -> Recording:
 def limit_excess(model: KinematicModel, joint_positions: torch.Tensor) -> float:
     """The largest amount by which joint_positions [T,n] exceed a joint limit or a coupled limit
     row (negative: the smallest margin)."""
-    excess = torch.maximum(joint_positions - model.upper, model.lower - joint_positions).amax()
+    return float(limit_excess_rows(model, joint_positions).amax())
+
+
+def limit_excess_rows(model: KinematicModel, joint_positions: torch.Tensor) -> torch.Tensor:
+    """Per row of joint_positions [T,n], the largest excess beyond a joint or coupled limit [T]."""
+    excess = torch.maximum(joint_positions - model.upper, model.lower - joint_positions).amax(-1)
     if model.linear_limits is not None:
         A, b = model.linear_limits.A, model.linear_limits.b
-        excess = torch.maximum(excess, (joint_positions @ A.T - b).amax())
-    return float(excess)
+        excess = torch.maximum(excess, (joint_positions @ A.T - b).amax(-1))
+    return excess
+
+
+def check_retargeting(rate: float, gain: float, limits: LimitSettings) -> None:
+    """InputError unless a position controller can be streamed at `rate` Hz with gain K and `limits`."""
+    if rate < MIN_RATE:
+        raise InputError(f"rate {rate:g} Hz: a position controller needs {MIN_RATE:g} Hz or more")
+    if gain <= 0 or gain / rate >= 2.0:
+        raise InputError(f"gain {gain:g} 1/s at {rate:g} Hz: K must be positive with K dt < 2 (stability)")
+    if limits.max_rate <= 0:
+        raise InputError(f"the largest joint rate must be positive, got {limits.max_rate:g} rad/s")
+
+
+class RetargetIK(DynamicalIK):
+    """iCub's tracker: every start (the first, and a restart after a gap in time or a broken step)
+    from the whole-body IK fit of the targets, inside every limit. iCub's zero configuration, where
+    the tracker would otherwise restart, is outside its coupled shoulder limits, and the tracker
+    would return from there at a bounded rate only."""
+
+    def __init__(self, icub: KinematicModel, links, **settings):
+        super().__init__(icub, links, **settings)
+        self.whole_body = WholeBodyIK(icub, links)
+
+    def initial_state(self, targets: Targets) -> State:
+        return self.whole_body.solve(targets, super().initial_state(targets)).state
+
+
+def icub_tracker(icub: KinematicModel, links, rate: float, gain: float, limits: LimitSettings,
+                 backend: str = TrackerSettings.backend, max_gap: float = TrackerSettings.max_gap) -> RetargetIK:
+    """iCub's tracker for the links at `rate` Hz with gain K and `limits`; start it at
+    `initial_state` of the first targets. max_gap: see TrackerSettings (inf: never restart after a gap)."""
+    return RetargetIK(icub, links, position_gain=gain, orientation_gain=gain, dt=1.0 / rate, limits=limits,
+                      backend=backend, max_gap=max_gap)
 
 
 def retarget(recording: Recording, rate: float = 100.0, gain: float = TrackerSettings.orientation_gain,
@@ -97,12 +136,7 @@ def retarget(recording: Recording, rate: float = 100.0, gain: float = TrackerSet
     """Retarget a recording in the human models' links to iCub at `rate` Hz with gain K (1/s) and
     the tracker's `limits` (limits.max_rate caps every joint's rate, rad/s). Returns the iCub
     trajectories and a report (MNTE after `transient` s, the limits' margin, the rate)."""
-    if rate < MIN_RATE:
-        raise InputError(f"rate {rate:g} Hz: a position controller needs {MIN_RATE:g} Hz or more")
-    if gain <= 0 or gain / rate >= 2.0:
-        raise InputError(f"gain {gain:g} 1/s at {rate:g} Hz: K must be positive with K dt < 2 (stability)")
-    if limits.max_rate <= 0:
-        raise InputError(f"the largest joint rate must be positive, got {limits.max_rate:g} rad/s")
+    check_retargeting(rate, gain, limits)
     icub = load_model("icub")
     mapped = human_to_icub(recording, icub)
     if len(mapped.time) < 2:
@@ -111,10 +145,8 @@ def retarget(recording: Recording, rate: float = 100.0, gain: float = TrackerSet
         mapped = resample(mapped, rate)
     links = mapped.links
     sequence = recording_targets(mapped, links, dtype=icub.dtype, device=icub.device)
-    tracker = DynamicalIK(icub, links, position_gain=gain, orientation_gain=gain, dt=1.0 / rate, limits=limits)
-    # start inside every limit, at the first frame's best fit: iCub's zero configuration is outside
-    # its coupled shoulder limits, and the tracker would return from there at a bounded rate only
-    start = WholeBodyIK(icub, links).solve(sequence[0], tracker.initial_state(sequence[0])).state
+    tracker = icub_tracker(icub, links, rate, gain, limits)
+    start = tracker.initial_state(sequence[0])
     trajectory = tracker.run(sequence, start, progress=progress)
     error = tracking_errors(icub, trajectory, sequence, links)["mnte"][:, 0]  # NaN where a target is missing
     known = known_targets(sequence)[:, 0]

@@ -23,7 +23,8 @@ Entities, for each logged subject i of the batch:
     /aggregate/<group>/<name>              Scalars: mean and max over all subjects (batches only)
 
 A blueprint in the same file opens it on the 3D view beside error, residual, joint and solver plots.
-Open with `rerun FILE.rrd`.
+Open with `rerun FILE.rrd`. `StepLogger` sends the same entities step by step, as a live session
+makes them (`torchik live --viewer`, `--rrd`).
 """
 
 from __future__ import annotations
@@ -98,7 +99,6 @@ def log_trajectory(path: str | Path, model: KinematicModel, links: Sequence[str]
 
         bar = tqdm(total=len(subjects) + 1, desc=f"writing {path.name}", unit="part", leave=False, delay=1.0)
     columns = _Columns.of(model, links, position_links, shapes, trajectory, per_subject, chunk)
-    time = columns.time
     if bar is not None:
         bar.update()
 
@@ -108,19 +108,8 @@ def log_trajectory(path: str | Path, model: KinematicModel, links: Sequence[str]
             rec.save(part, default_blueprint=blueprint(subjects, aggregate=B > 1))
             rec.send_recording_name(path.stem)
             rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-            for i in subjects:
-                _log_subject(rec, columns, i, targets, trajectory.time, axis_length)
-                if bar is not None:
-                    bar.update()
-            for name, values in per_batch.items():
-                _send_scalars(rec, f"/timing/{name}", time, values * 1e3, [f"{name.replace('_', ' ')} (ms)"])
-            if B > 1:
-                for name, values in per_subject.items():
-                    with warnings.catch_warnings():  # a step where every subject's value is NaN stays NaN
-                        warnings.simplefilter("ignore", RuntimeWarning)
-                        summary = np.stack((np.nanmean(values, axis=1), np.nanmax(values, axis=1)), axis=1)
-                    _send_scalars(rec, f"/aggregate/{GROUPS.get(name, 'diagnostics')}/{name}", time, summary,
-                                  ["mean", "max"])
+            _log_batch(rec, columns, {i: i for i in subjects}, targets, trajectory.time, per_batch, axis_length,
+                       set(subjects), bar.update if bar is not None else None)
             rec.flush()
             rec.disconnect()  # closes the file, with its footer, before it is moved into place
     finally:
@@ -128,6 +117,43 @@ def log_trajectory(path: str | Path, model: KinematicModel, links: Sequence[str]
             bar.close()
     return path
 
+
+
+class StepLogger:
+    """Steps of a live session logged as they are made on an open RecordingStream (a viewer, a
+    file, or both), with the entities of `log_trajectory`: batch row i as /subject/<names[i]>.
+    What never changes (the visuals, the bones, the world's axes, each subject's static parts) is
+    computed or sent once."""
+
+    def __init__(self, rec: rr.RecordingStream, model: KinematicModel, links: Sequence[str],
+                 position_links: Sequence[str] | None = None, urdf: str | Path | None = None, axis_length: float = 0.08,
+                 shapes: dict[str, list[Visual]] | None = None):
+        """urdf: whose visuals draw the body (default the model's file); shapes: those visuals, read
+        already (`visuals(urdf)`)."""
+        self.rec, self.model, self.links = rec, model, tuple(links)
+        self.position_links = tuple(position_links) if position_links is not None else (model.base_link,)
+        if urdf is None and Path(model.source).is_file():
+            urdf = model.source
+        self.shapes = shapes if shapes is not None else visuals(urdf) if urdf is not None else {}
+        self.bones = _bones(model, self.links)
+        self.axis_length = axis_length
+        self.logged: set[int] = set()
+
+    def log(self, trajectory: Trajectory, targets: TargetSequence | None, names: Sequence[int]) -> None:
+        """trajectory: a few steps [T,B,...] with their diagnostics (residual_norm [T,B,n_targets],
+        the per-subject ones [T,B], the batch's [T]); targets: theirs [T,B,...]; row i is subject
+        names[i]."""
+        T, B = trajectory.joint_positions.shape[:2]
+        if not self.logged:
+            self.rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        per_subject, per_batch = _split_diagnostics(trajectory.diagnostics, T, B,
+                                                    len(self.links) + len(self.position_links))
+        columns = _Columns.of(self.model, self.links, self.position_links, self.shapes, trajectory, per_subject, 4096,
+                              self.bones)
+        new = set(names) - self.logged
+        _log_batch(self.rec, columns, dict(enumerate(names)), targets, trajectory.time, per_batch, self.axis_length,
+                   new)
+        self.logged |= new
 
 @dataclass
 class _Columns:
@@ -154,68 +180,93 @@ class _Columns:
     @staticmethod
     def of(model: KinematicModel, links: tuple[str, ...], position_links: tuple[str, ...],
            shapes: dict[str, list[Visual]], trajectory: Trajectory, per_subject: dict[str, np.ndarray],
-           chunk: int) -> "_Columns":
+           chunk: int, bones: tuple[list[int], list[int]] | None = None) -> "_Columns":
         # every link that is tracked or drawn, tracked ones first
         drawn = links + tuple(name for name in model.link_names if name in shapes and name not in links)
         rotation, position = _link_poses(model, drawn, trajectory, chunk)  # [T,B,D,3,3], [T,B,D,3] float32
-        child, parent = _bones(model, links)
-        bones = torch.stack((position[:, :, child], position[:, :, parent]), dim=-2).numpy()  # [T,B,E,2,3]
+        child, parent = bones if bones is not None else _bones(model, links)
+        segments = torch.stack((position[:, :, child], position[:, :, parent]), dim=-2).numpy()  # [T,B,E,2,3]
         host = lambda t: t.detach().to("cpu", torch.float64).numpy()  # noqa: E731
         lower, upper = host(model.lower), host(model.upper)
         return _Columns(model, links, position_links, shapes, drawn, rr.TimeColumn("time", duration=host(trajectory.time)),
-                        position.numpy(), quaternion_xyzw(rotation).numpy(), bones, host(trajectory.joint_positions),
+                        position.numpy(), quaternion_xyzw(rotation).numpy(), segments, host(trajectory.joint_positions),
                         host(trajectory.diagnostics["residual_norm"]), np.isfinite(lower) & np.isfinite(upper) &
                         (upper - lower < NO_LIMIT), lower, upper, per_subject)
 
 
+def _log_batch(rec: rr.RecordingStream, columns: _Columns, names: dict[int, int], targets: TargetSequence | None,
+               target_time: torch.Tensor, per_batch: dict[str, np.ndarray], axis_length: float, new: set[int],
+               after_each=None) -> None:
+    """Batch row i as subject names[i] (its static parts when names[i] is in `new`), the batch's
+    timing and, for a batch, the aggregate over its rows."""
+    time, B = columns.time, columns.joint_positions.shape[1]
+    for i, name in names.items():
+        _log_subject(rec, columns, i, targets, target_time, axis_length, name, name in new)
+        if after_each is not None:
+            after_each()
+    for series, values in per_batch.items():
+        _send_scalars(rec, f"/timing/{series}", time, values * 1e3, [f"{series.replace('_', ' ')} (ms)"])
+    if B > 1:
+        for series, values in columns.per_subject.items():
+            with warnings.catch_warnings():  # a step where every subject's value is NaN stays NaN
+                warnings.simplefilter("ignore", RuntimeWarning)
+                summary = np.stack((np.nanmean(values, axis=1), np.nanmax(values, axis=1)), axis=1)
+            _send_scalars(rec, f"/aggregate/{GROUPS.get(series, 'diagnostics')}/{series}", time, summary,
+                          ["mean", "max"])
+
+
 def _log_subject(rec: rr.RecordingStream, columns: _Columns, i: int, targets: TargetSequence | None,
-                 target_time: torch.Tensor, axis_length: float) -> None:
-    """Subject i's entity tree: link poses and visuals, skeleton, targets, diagnostics, residuals, joints."""
-    c, root, color = columns, f"/subject/{i}", PALETTE[i % len(PALETTE)]
+                 target_time: torch.Tensor, axis_length: float, name: int, static: bool) -> None:
+    """Batch row i's entity tree at /subject/<name>: link poses and visuals, skeleton, targets,
+    diagnostics, residuals, joints; the parts that never change (visuals, axes, series names) when
+    `static`."""
+    c, root, color = columns, f"/subject/{name}", PALETTE[name % len(PALETTE)]
     T, time = len(c.joint_positions), c.time
     for k, link in enumerate(c.drawn):
-        name = f"{root}/estimate/{rr.escape_entity_path_part(link)}"
-        if k < len(c.links):
-            rec.log(name, rr.TransformAxes3D(axis_length), static=True)
-        log_visuals(rec, f"{name}/visual", c.shapes.get(link, ()), color)
-        rec.send_columns(name, [time], rr.Transform3D.columns(
+        path = f"{root}/estimate/{rr.escape_entity_path_part(link)}"
+        if static and k < len(c.links):
+            rec.log(path, rr.TransformAxes3D(axis_length), static=True)
+        if static:
+            log_visuals(rec, f"{path}/visual", c.shapes.get(link, ()), color)
+        rec.send_columns(path, [time], rr.Transform3D.columns(
             translation=c.position[:, i, k], quaternion=c.quaternion[:, i, k]))
-    rec.log(f"{root}/skeleton", rr.LineStrips3D.from_fields(radii=[0.01], colors=[color]), static=True)
+    if static:
+        rec.log(f"{root}/skeleton", rr.LineStrips3D.from_fields(radii=[0.01], colors=[color]), static=True)
     rec.send_columns(f"{root}/skeleton", [time], rr.LineStrips3D.columns(
         strips=c.bones[:, i].reshape(-1, 2, 3)).partition(np.full(T, c.bones.shape[2])))
     if targets is not None:
         _log_targets(rec, f"{root}/target", target_time, targets, i, c.links, c.position_links,
-                     c.position[:, i, :len(c.links)], 1.5 * axis_length)
-    for name, values in c.per_subject.items():
-        _send_scalars(rec, f"{root}/{GROUPS.get(name, 'diagnostics')}/{name}", time, values[:, i])
+                     c.position[:, i, :len(c.links)], 1.5 * axis_length, static)
+    for series, values in c.per_subject.items():
+        _send_scalars(rec, f"{root}/{GROUPS.get(series, 'diagnostics')}/{series}", time, values[:, i])
     for j, link in enumerate(c.position_links + c.links):
         kind = "position" if j < len(c.position_links) else "orientation"
         _send_scalars(rec, f"{root}/residual/{kind}/{rr.escape_entity_path_part(link)}", time, c.residual[:, i, j])
     for j, joint in enumerate(c.model.joint_names):
-        values, names = c.joint_positions[:, i, j], None
+        values, labels = c.joint_positions[:, i, j], None
         if c.limited[j]:
             values = np.stack((values, np.full(T, c.lower[j]), np.full(T, c.upper[j])), axis=1)
-            names = ["angle", "lower limit", "upper limit"]
-        _send_scalars(rec, f"{root}/joints/{rr.escape_entity_path_part(joint)}", time, values, names)
+            labels = ["angle", "lower limit", "upper limit"] if static else None
+        _send_scalars(rec, f"{root}/joints/{rr.escape_entity_path_part(joint)}", time, values, labels)
 
 
-def blueprint(subjects: Sequence[int], aggregate: bool = False) -> rrb.Blueprint:
+def blueprint(subjects: Sequence[int], aggregate: bool = False, live: bool = False) -> rrb.Blueprint:
     """The layout: the 3D view on the left; on the right MNTE and angular velocity RMSE (of the
     first logged subject, or mean and max over the batch), residuals and joint angles of the first
-    logged subject, solver status and step time."""
+    logged subject, solver status and step time; live: the live counters too (/live)."""
     first = f"/subject/{subjects[0]}"
     summary = "/aggregate" if aggregate else first
-    return rrb.Blueprint(rrb.Horizontal(
-        rrb.Spatial3DView(name="estimate and targets", origin="/"),
-        rrb.Vertical(
-            rrb.Horizontal(rrb.TimeSeriesView(name="MNTE", origin=f"{summary}/errors/mnte"),
-                           rrb.TimeSeriesView(name="angular velocity RMSE (rad/s)", origin=f"{summary}/errors/rmse")),
-            rrb.TimeSeriesView(name=f"residual norms, subject {subjects[0]}", origin=f"{first}/residual"),
-            rrb.TimeSeriesView(name=f"joint angles (rad), subject {subjects[0]}", origin=f"{first}/joints"),
-            rrb.TimeSeriesView(name="solver and step time", contents=[f"{summary}/solver/**", "/timing/**"]),
-        ),
-        column_shares=[3, 2],
-    ))
+    plots: list[rrb.Container | rrb.View] = [
+        rrb.Horizontal(rrb.TimeSeriesView(name="MNTE", origin=f"{summary}/errors/mnte"),
+                       rrb.TimeSeriesView(name="angular velocity RMSE (rad/s)", origin=f"{summary}/errors/rmse")),
+        rrb.TimeSeriesView(name=f"residual norms, subject {subjects[0]}", origin=f"{first}/residual"),
+        rrb.TimeSeriesView(name=f"joint angles (rad), subject {subjects[0]}", origin=f"{first}/joints"),
+        rrb.TimeSeriesView(name="solver and step time", contents=[f"{summary}/solver/**", "/timing/**"]),
+    ]
+    if live:
+        plots.append(rrb.TimeSeriesView(name="live counters", origin="/live"))
+    return rrb.Blueprint(rrb.Horizontal(rrb.Spatial3DView(name="estimate and targets", origin="/"), rrb.Vertical(*plots),
+                                        column_shares=[3, 2]))
 
 
 def _check_targets(targets: TargetSequence, T: int, B: int, n_o: int, n_p: int) -> None:
@@ -279,7 +330,7 @@ def _split_diagnostics(diagnostics: dict[str, torch.Tensor], T: int, B: int, n_t
 
 def _log_targets(rec: rr.RecordingStream, root: str, time: torch.Tensor, targets: TargetSequence, i: int,
                  links: tuple[str, ...], position_links: tuple[str, ...], estimate: np.ndarray,
-                 axis_length: float) -> None:
+                 axis_length: float, static: bool = True) -> None:
     """Subject i's measured frames [T] at root/<link> (estimate: the estimated link origins
     [T,L,3], where a target without a position is drawn); steps with a non-finite target are left
     out of that link's column."""
@@ -295,7 +346,8 @@ def _log_targets(rec: rr.RecordingStream, root: str, time: torch.Tensor, targets
     for k, link in enumerate(links):
         name = f"{root}/{rr.escape_entity_path_part(link)}"
         keep = known[:, k]
-        rec.log(name, rr.TransformAxes3D(axis_length), static=True)
+        if static:
+            rec.log(name, rr.TransformAxes3D(axis_length), static=True)
         rec.send_columns(name, [rr.TimeColumn("time", duration=seconds[keep])], rr.Transform3D.columns(
             translation=at[keep, k], quaternion=quaternion[keep, k]))
 

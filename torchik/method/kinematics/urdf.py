@@ -77,6 +77,11 @@ class KinematicTree:
         """Each link's row in link_names."""
         return MappingProxyType({name: i for i, name in enumerate(self.link_names)})
 
+    def __getstate__(self) -> dict:
+        """For pickling (a model sent to another process): the cached link_index, a mapping proxy that
+        cannot be pickled, is left out and made again on first use."""
+        return {name: value for name, value in self.__dict__.items() if name != "link_index"}
+
     def same_topology(self, other: "KinematicTree") -> bool:
         """True when both trees have the same joints, links, skeleton and axes (dimensions may differ)."""
         return (other.joint_names == self.joint_names and other.link_names == self.link_names

@@ -1,0 +1,313 @@
+"""The live loop: a receiver thread reads the source and leaves each complete sample in a
+`Mailbox`: per character at most `backlog` samples (default 1: the newest); an older one is stepped
+over and counted as skipped when a newer arrives, so the queue never grows. The tracking loop takes
+one sample per character per step (waiting up to `gather_s` for the characters of a frame to be all
+there), so neither blocks the other.
+
+A step's dt is the frame counter's difference over the stream's rate: lost frames give a longer
+step, as they would offline. A character without a sample in a step has its targets dropped for it
+(it stands still); one silent for `stall_s` leaves the batch, is reported, and joins again, from
+the pose of its new targets, when it comes back. The per-step work is batched: targets, dt, the
+published values and the history are array operations over the characters; only the LSL push is
+one call per character (one outlet each)."""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ...live.sample import Sample, Source
+from ...method.kinematics import KinematicModel
+from ...method.settings import TrackerSettings
+from ...method.tracker import DynamicalIK
+from .batch import BatchTracker, LiveRetarget, rows_from
+from .history import History, LiveResult, milliseconds
+from .publish import Publisher
+from .targets import Selection, sample_targets
+from .viewer import LiveViewer
+
+
+class Mailbox:
+    """Complete samples from the receiver thread to the tracking loop: per character a deque of at
+    most `backlog`; putting into a full one steps over its oldest sample (counted in `skipped`)."""
+
+    def __init__(self, backlog: int = 1):
+        self.backlog = backlog
+        self.queues: dict[int, deque] = {}
+        self.skipped: dict[int, int] = {}
+        self.last_put: dict[int, float] = {}  # per character, when its newest sample came in
+        self.condition = threading.Condition()
+        self.finished = False  # the source ended
+
+    def put(self, sample: Sample) -> None:
+        with self.condition:
+            queue = self.queues.setdefault(sample.character, deque())
+            if len(queue) >= self.backlog:
+                queue.popleft()
+                self.skipped[sample.character] = self.skipped.get(sample.character, 0) + 1
+            queue.append(sample)
+            self.last_put[sample.character] = time.perf_counter()
+            self.condition.notify()
+
+    def finish(self) -> None:
+        with self.condition:
+            self.finished = True
+            self.condition.notify()
+
+    def take(self, active, timeout: float, gather: float) -> dict[int, Sample]:
+        """The oldest queued sample of each character that has one: waits up to `timeout` for the
+        first, then up to `gather` for every `active` character to have one."""
+        with self.condition:
+            self.condition.wait_for(lambda: self.finished or any(self.queues.values()), timeout)
+            deadline = time.perf_counter() + gather
+            while not self.finished and not all(self.queues.get(c) for c in active):
+                remaining = deadline - time.perf_counter()
+                if remaining <= 0 or not self.condition.wait(remaining):
+                    break
+            return {c: q.popleft() for c, q in self.queues.items() if q}
+
+
+@dataclass
+class LiveOptions:
+    """backlog: samples queued per character (1: always the newest); stall_s: silence after which a
+    character leaves the batch and the source is reported stalled; gather_s: how long a step waits
+    for the rest of a frame's characters (None: half a frame); duration_s: stop after this
+    long; stop_when_idle_s: stop once the source has been silent this long (replays, tests); None:
+    run until Ctrl-C. keep_states: keep every step's states for the trajectories (`--out`); without,
+    only what the report needs."""
+
+    backlog: int = 1
+    stall_s: float = 1.0
+    gather_s: float | None = None
+    duration_s: float | None = None
+    stop_when_idle_s: float | None = None
+    keep_states: bool = True
+
+
+@dataclass
+class Outputs:
+    """Where a session's estimates go as they are made, any of them: LSL outlets (of the tracked
+    model's joints, or the robot's when retargeting), the live viewer (`LiveViewer`), the robot."""
+
+    publisher: Publisher | None = None
+    viewer: LiveViewer | None = None
+    retarget: LiveRetarget | None = None
+
+
+def track_live(source: Source, model: KinematicModel, selection_for, settings: TrackerSettings | None = None,
+               options: LiveOptions | None = None, publisher: Publisher | None = None, progress=None,
+               viewer: LiveViewer | None = None, retarget: LiveRetarget | None = None) -> LiveResult:
+    """Track `source` until it ends, `options` stop it, or Ctrl-C (then `interrupted`).
+
+    selection_for: a function of the source's segment names giving the `Selection` (built once,
+    at the first sample); progress: called with (counters, seconds since the start) about once a
+    second; viewer: a LiveViewer; retarget: a LiveRetarget (the publisher then carries the robot's
+    joints)."""
+    options = options or LiveOptions()
+    mailbox = Mailbox(options.backlog)
+    receiver = threading.Thread(target=_receive, args=(source, mailbox), daemon=True, name="torchik-live-receiver")
+    receiver.start()
+    loop = _Loop(model, settings or TrackerSettings(), selection_for, Outputs(publisher, viewer, retarget),
+                 options.keep_states, getattr(source, "lsl_clock", False))
+    start = last_progress = last_check = time.perf_counter()
+    interrupted = False
+    try:
+        while True:
+            # a source knows its rate before it yields its first sample (MVN estimates it from the
+            # first time codes, LSL reads the stream's nominal rate)
+            gather = options.gather_s if options.gather_s is not None else 0.5 / (source.rate or 100.0)
+            got = mailbox.take(loop.active, timeout=0.05, gather=gather)
+            now = time.perf_counter()
+            if got:
+                assert source.rate is not None
+                loop.step(got, source.rate, lambda: _counters(source, mailbox, loop))
+            elif mailbox.finished:
+                break
+            if now - last_check >= min(0.05, options.stall_s / 4):  # not every step: a look at every character
+                last_check = now
+                loop.check_stalls(now, options.stall_s, mailbox)
+            if options.duration_s is not None and now - start >= options.duration_s:
+                break
+            idle = now - max(mailbox.last_put.values()) if mailbox.last_put and not got else 0.0
+            if options.stop_when_idle_s is not None and idle >= options.stop_when_idle_s:
+                break
+            if progress is not None and now - last_progress >= 1.0:
+                last_progress = now
+                progress(_counters(source, mailbox, loop), now - start)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        source.close()
+        receiver.join(timeout=2.0)
+        if viewer is not None:
+            viewer.close(_counters(source, mailbox, loop))
+    return loop.result(source, mailbox, interrupted)
+
+
+def _receive(source: Source, mailbox: Mailbox) -> None:
+    try:
+        for sample in source:
+            mailbox.put(sample)
+    finally:
+        mailbox.finish()
+
+
+def _counters(source: Source, mailbox: Mailbox, loop: "_Loop") -> dict:
+    """The live counters: the source's (datagrams received, samples, lost, late, duplicates,
+    malformed, ...), samples skipped, stalls, active characters, and the latency of the samples
+    published in the last 200 steps (ms, or None)."""
+    recent = np.concatenate(loop.latency[-200:]) if loop.latency else np.empty(0)
+    return dict(source.stats.as_dict(), skipped=sum(mailbox.skipped.values()), stalls=loop.stalls,
+                characters=len(loop.active), latency_ms=milliseconds(recent))
+
+
+class _Loop:
+    """The tracking side: the batch of active characters, the trackers, the history."""
+
+    def __init__(self, model: KinematicModel, settings: TrackerSettings, selection_for, outputs: Outputs,
+                 keep_states: bool, lsl_clock: bool):
+        self.model, self.settings, self.selection_for, self.outputs = model, settings, selection_for, outputs
+        self.lsl_clock = lsl_clock  # the source's time stamps are LSL's: carried over as they are
+        self.selection: Selection | None = None
+        self.human: BatchTracker | None = None
+        self.active: list[int] = []  # the characters, by batch row
+        self.characters = np.empty(0, dtype=np.int64)  # the same, as an array
+        self.last_frame = np.empty(0, dtype=np.int64)  # per row, the last frame stepped to (-1: none yet)
+        self._index: dict[int, int] = {}  # character -> row
+        self._seen: set[int] = set()
+        self.history = History(keep_states)
+        self.robot_history = History(keep_states) if outputs.retarget is not None else None
+        self.events: list[str] = []
+        self.latency: list[np.ndarray] = []
+        self.step_time: list[float] = []
+        self.stalls = 0
+        self.rate = float("nan")
+        self.clock_offset = 0.0
+
+    def _start(self, first: Sample, rate: float) -> None:
+        selection: Selection = self.selection_for(first.links)
+        self.selection, self.rate = selection, rate
+        settings = dataclasses.replace(self.settings, dt=1.0 / rate)
+        self.human = BatchTracker(DynamicalIK(self.model, selection.links, settings=settings))
+        out = self.outputs
+        if out.retarget is not None:
+            out.retarget.start(selection.links, self.model.base_link, rate)
+        if out.publisher is not None:
+            from ...live.lsl import pylsl
+
+            out.publisher.rate = out.publisher.rate or rate
+            self.clock_offset = pylsl().local_clock() - time.perf_counter()
+
+    def step(self, got: dict[int, Sample], rate: float, counters) -> None:
+        """One step of every active character towards its sample in `got` (characters not yet in the
+        batch join it). counters: a function giving the live counters (for the viewer)."""
+        if self.human is None:
+            self._start(next(iter(got.values())), rate)
+        assert self.human is not None and self.selection is not None  # started
+        joining = [c for c in got if c not in self._index]
+        samples = [got.get(c) for c in self.active] + [got[c] for c in joining]
+        targets = sample_targets(samples, self.selection, self.model.dtype, self.model.device)
+        retarget = self.outputs.retarget
+        robot_targets = retarget.targets(targets) if retarget is not None else None
+        if joining:
+            self._join(joining, targets, robot_targets)
+        present = np.fromiter((s is not None for s in samples), bool, len(samples))
+        given = [s for s in samples if s is not None]
+        frames = np.fromiter((s.frame for s in given), np.int64, len(given))
+        dt = self._time_steps(present, frames)
+        rows = None if len(given) == len(samples) else torch.from_numpy(np.flatnonzero(present))
+        characters = self.characters[present]
+        if retarget is None or robot_targets is None or self.robot_history is None:
+            state, diagnostics = self.human.step(targets, dt)
+            self._publish(state, present, None, characters, given)
+        else:  # what is published first: the robot's
+            robot, robot_diagnostics, within = retarget.step(robot_targets, dt)
+            self._publish(robot, present, within.cpu().numpy()[present], characters, given)
+            state, diagnostics = self.human.step(targets, dt)
+            self.robot_history.add(characters, frames, rows, robot, robot_diagnostics)
+        self.step_time.append(diagnostics.step_time)
+        self.last_frame[present] = frames
+        self.history.add(characters, frames, rows, state, diagnostics)
+        if self.outputs.viewer is not None and self.outputs.viewer.due():
+            self.outputs.viewer.offer(dict(time=float(frames.max()) / self.rate, characters=self.characters.copy(),
+                                           state=state, diagnostics=diagnostics, targets=targets, counters=counters))
+
+    def _publish(self, state, present: np.ndarray, publishable: np.ndarray | None, characters: np.ndarray,
+                 given: list[Sample]) -> None:
+        """The values of the rows with a sample (and `publishable` [m] of those, or all) on their
+        outlets, stamped with the samples' LSL times (or their arrival, on LSL's clock); each one's
+        latency from its datagram's arrival to the push's return."""
+        publisher = self.outputs.publisher
+        if publisher is None:
+            return
+        arrival = np.fromiter((s.arrival for s in given), np.float64, len(given))
+        stamps = np.fromiter((s.time for s in given), np.float64, len(given)) if self.lsl_clock else \
+            arrival + self.clock_offset
+        if publishable is None:
+            publishable = np.ones(len(given), dtype=bool)
+        rows_present = np.flatnonzero(present)[publishable]
+        rows = None if len(rows_present) == len(present) else torch.from_numpy(rows_present)
+        done = publisher.publish(characters[publishable].tolist(), publisher.values(state, rows), stamps[publishable])
+        self.latency.append(done - arrival[publishable])
+
+    def _time_steps(self, present: np.ndarray, frames: np.ndarray):
+        """None (the nominal dt) when every character moved on by one frame, else dt [B] from the
+        frame counters (a character without a sample, or at its first: the nominal dt)."""
+        previous = self.last_frame[present]
+        gaps = np.ones(len(present))
+        gaps[present] = np.where(previous >= 0, frames - previous, 1)
+        if (gaps == 1).all():
+            return None
+        return torch.from_numpy(gaps / self.rate).to(self.model.dtype)
+
+    def _join(self, joining: list[int], targets, robot_targets) -> None:
+        """New characters become rows of the batch, from the pose of their first targets."""
+        assert self.human is not None
+        first = len(self.active)
+        self.human.join(rows_from(targets, first))
+        if self.outputs.retarget is not None:
+            assert self.outputs.retarget.batch is not None  # started with the human's
+            self.outputs.retarget.batch.join(rows_from(robot_targets, first))
+        for c in joining:
+            self.events.append(f"character {c} joined" if c not in self._seen else f"character {c} came back")
+            self._seen.add(c)
+        self._set_active(self.active + joining, np.concatenate((self.last_frame, np.full(len(joining), -1))))
+
+    def _set_active(self, active: list[int], last_frame: np.ndarray) -> None:
+        self.active, self.last_frame = active, last_frame
+        self.characters = np.array(active, dtype=np.int64)
+        self._index = {c: row for row, c in enumerate(active)}
+
+    def check_stalls(self, now: float, stall_s: float, mailbox: Mailbox) -> None:
+        """Characters silent for stall_s (nothing received, nothing left queued) leave the batch."""
+        stalled = [c for c in self.active if now - mailbox.last_put[c] > stall_s and not mailbox.queues[c]]
+        if not stalled or self.human is None:
+            return
+        self.stalls += len(stalled)
+        keep = [row for row, c in enumerate(self.active) if c not in stalled]
+        for c in stalled:
+            self.events.append(f"character {c} stalled (no data for {stall_s:g} s) and left the batch")
+        if keep:
+            rows = torch.tensor(keep)
+            self.human.keep(rows)
+            if self.outputs.retarget is not None and self.outputs.retarget.batch is not None:
+                self.outputs.retarget.batch.keep(rows)
+        else:  # nobody left: the next to come starts a fresh batch
+            self.human.size = 0
+            if self.outputs.retarget is not None and self.outputs.retarget.batch is not None:
+                self.outputs.retarget.batch.size = 0
+        self._set_active([self.active[row] for row in keep], self.last_frame[keep])
+
+    def result(self, source, mailbox: Mailbox, interrupted: bool) -> LiveResult:
+        retarget = self.outputs.retarget
+        robot = self.robot_history.trajectories(self.rate, interrupted) if self.robot_history is not None else {}
+        return LiveResult(self.history.per_character(self.rate), self.history.trajectories(self.rate, interrupted),
+                          robot, source.stats.as_dict(), dict(mailbox.skipped), list(self.events),
+                          np.concatenate(self.latency) if self.latency else np.empty(0), np.array(self.step_time),
+                          self.rate, interrupted, retarget.report() if retarget is not None else None)
