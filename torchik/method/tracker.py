@@ -38,17 +38,14 @@ from ..errors import InputError
 from .integrate import integrate, orthonormalize
 from .invariant import broken_subjects
 from .kinematics import KinematicModel
-from .limits import LinearRows, linear_limit_bounds, velocity_bounds
-from .metrics import orientation_error
-from .qp import QPBackend, QPProblem, TreeHessian, make_backend
-from .residual import corrected_velocity, orientation_residual, position_residual
+from .qp import QPBackend, make_backend
 from .scheme import Evaluation, SchemeHistory
 from .settings import SCHEMES, TrackerSettings, check_settings
 from .state import State, StepDiagnostics, TargetSequence, Trajectory, TrajectoryBuffer
-from .step_kinematics import StepKinematics, given, step_kinematics
+from .step_kinematics import StepKinematics, step_kinematics
+from .step_task import step_task, tracking_errors
 from .structure import BatchSetup, StepStructure
 from .targets import Targets, check_targets, clean_targets
-from .task import Objective, normal_equations
 
 
 class DynamicalIK:
@@ -158,19 +155,10 @@ class DynamicalIK:
         kin = self._kinematics(q, at, batch)
         kinematics_time = time.perf_counter() - kinematics_start
 
-        x = at.residual_targets
-        r_p = position_residual(x.position, kin.position)
-        r_o = orientation_residual(x.rotation, kin.rotation)
-        v_p = corrected_velocity(at.linear_velocity, r_p, structure.position_gain)
-        v_o = corrected_velocity(at.angular_velocity, r_o, structure.orientation_gain)
-        weights = (None, None) if clean.all_valid else (clean.position_valid.to(q.velocity.dtype),
-                                                        clean.orientation_valid.to(q.velocity.dtype))
-        objective, tree = self._objective(kin, v_p, v_o, weights, batch)
-        bounds = velocity_bounds(q.joint_positions, model.lower, model.upper, self.settings.limits, dt,
-                                 batch.base_bounds)
-        rows = self._coupled_rows(q.joint_positions, dt, batch)
-        problem = QPProblem(objective.H, objective.g, bounds.lower, bounds.upper, rows.G if rows else None,
-                            rows.h if rows else None, tree)
+        valid = None if clean.all_valid else (clean.position_valid, clean.orientation_valid)
+        weights = (None, None) if valid is None else (valid[0].to(q.velocity.dtype), valid[1].to(q.velocity.dtype))
+        task = step_task(model, structure, self.settings, batch, q.joint_positions, at, kin, dt, weights)
+        problem = task.problem
 
         qp_start = time.perf_counter()
         solution = self.backend.solve(problem, warm_start=q.velocity)
@@ -187,13 +175,10 @@ class DynamicalIK:
             self._restart(failed, targets)
             self._history.forget(failed, previous=False)  # x_k, which it restarted from, stays
 
-        error = orientation_error(at.start_targets.rotation, kin.rotation,
-                                  r_o if at.start_targets is at.residual_targets else None)  # [B,n_o]
-        residual_norm = torch.linalg.vector_norm(torch.cat((r_p, r_o), dim=1), dim=-1)  # [B,n_p+n_o]
+        mnte, residual_norm = tracking_errors(at, kin, task, valid)
         diagnostics = StepDiagnostics(
-            mnte=error.mean(-1) if clean.all_valid else _mean_over(error, clean.orientation_valid),
-            residual_norm=residual_norm if clean.all_valid else
-            residual_norm * torch.cat((clean.position_valid, clean.orientation_valid), dim=1),
+            mnte=mnte,
+            residual_norm=residual_norm,
             active_constraints=problem.active(nu),
             solved=solution.solved,
             dropped=clean.dropped,
@@ -236,26 +221,6 @@ class DynamicalIK:
         R_B = self._rotation
         assert R_B is not None  # set with the state
         return step_kinematics(self.model, self.structure, batch, self.settings.scheme, q, R_B, at)
-
-    def _objective(self, kin: StepKinematics, v_p: torch.Tensor, v_o: torch.Tensor,
-                   weights: tuple[torch.Tensor | None, torch.Tensor | None],
-                   batch: BatchSetup) -> tuple[Objective, TreeHessian | None]:
-        """The normal equations of ||v* - J nu||^2 + lambda ||nu||^2, with the Hessian in the tree's
-        structured form (and H None) when the batched backend solves on it."""
-        damping, structure = self.settings.damping, self.structure
-        objective = normal_equations(structure.task, kin.joint_axes, kin.position_jacobian, v_p, v_o, damping,
-                                     weights[0], weights[1], hessian=not batch.structured)
-        tree = TreeHessian.from_targets(given(structure.tree), kin.joint_axes, damping, len(self.position_links),
-                                        weights[1], weights[0]) if batch.structured else None
-        return objective, tree
-
-    def _coupled_rows(self, s: torch.Tensor, dt, batch: BatchSetup) -> LinearRows | None:
-        """The coupled limits A s <= b as rows on nu, G nu <= h (None when the model has none)."""
-        if batch.linear_rows is None:
-            return None
-        limits = self.model.linear_limits
-        assert limits is not None  # the rows exist
-        return LinearRows(batch.linear_rows, linear_limit_bounds(s, limits.A, limits.b, self.settings.limits, dt))
 
     def _check_targets(self, targets: Targets, batch: BatchSetup) -> None:
         """One comparison in the usual case; check_targets says what is wrong otherwise."""
@@ -349,8 +314,3 @@ class DynamicalIK:
         gaps = gaps.to(self.model.device)
         return lambda k: None if nominal[k] else gaps[k - 1].expand(B)
 
-
-def _mean_over(values: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
-    """The mean of values [B,n] over the valid [B,n] ones (0 where none is)."""
-    weight = valid.to(values.dtype)
-    return (values * weight).sum(-1) / weight.sum(-1).clamp(min=1.0)
