@@ -71,6 +71,28 @@ def check_targets(targets: Targets, n_position: int, n_orientation: int, dtype: 
             raise InputError(f"targets.{name}: expected {dtype} on {device}, got {t.dtype} on {t.device}")
 
 
+def _worst(targets: Targets) -> tuple[torch.Tensor, torch.Tensor]:
+    """The largest deviation of a target rotation from orthonormality, NaN if any target is not
+    finite (NaN and Inf propagate through the sums), and the deviations R^T R - I [B,n_o,3,3]."""
+    R = targets.rotation
+    deviation = R.transpose(-1, -2) @ R - so3.identity(R.dtype, R.device)
+    largest = deviation.abs().amax() if R.shape[1] else R.new_zeros(())
+    # alpha 0 keeps NaN and Inf (0 * Inf is NaN); a finite sum that overflows only takes the slow path
+    values = torch.cat((targets.position, targets.linear_velocity, targets.angular_velocity), 1).sum()
+    return torch.add(largest, values, alpha=0.0), deviation
+
+
+def _orthonormal_tolerance(tolerance: float, dtype: torch.dtype) -> float:
+    return max(tolerance, 100 * torch.finfo(dtype).eps)  # float32 rounding
+
+
+def already_clean(targets: Targets, orthonormal_tolerance: float = 1e-9) -> torch.Tensor:
+    """A bool tensor: True where `clean_targets` would leave the targets as they are (every one
+    finite, every rotation orthonormal to a third of orthonormal_tolerance), without a synchronisation."""
+    worst, _ = _worst(targets)
+    return worst <= _orthonormal_tolerance(orthonormal_tolerance, targets.rotation.dtype) / 3
+
+
 PROJECT_TOLERANCE = 1e-2  # ||R^T R - I|| (Frobenius) up to which a target rotation is projected onto SO(3)
 
 
@@ -85,13 +107,10 @@ def clean_targets(targets: Targets, project_tolerance: float = PROJECT_TOLERANCE
     rotation, angular_velocity = targets.rotation, targets.angular_velocity
     B, n_p, n_o = position.shape[0], position.shape[1], rotation.shape[1]
     eye = so3.identity(rotation.dtype, rotation.device)
-    orthonormal_tolerance = max(orthonormal_tolerance, 100 * torch.finfo(rotation.dtype).eps)  # float32 rounding
-    deviation = rotation.transpose(-1, -2) @ rotation - eye
-    # one number for the usual case, one synchronisation: the largest deviation from
-    # orthonormality, NaN if any target is not finite (NaN and Inf propagate through the sums)
-    largest = deviation.abs().amax() if n_o else rotation.new_zeros(())
-    # alpha 0 keeps NaN and Inf (0 * Inf is NaN); a finite sum that overflows only takes the slow path
-    worst = float(torch.add(largest, torch.cat((position, linear_velocity, angular_velocity), 1).sum(), alpha=0.0))
+    orthonormal_tolerance = _orthonormal_tolerance(orthonormal_tolerance, rotation.dtype)
+    # one number for the usual case, one synchronisation
+    worst_tensor, deviation = _worst(targets)
+    worst = float(worst_tensor)
     all_valid = math.isfinite(worst)
     if all_valid:
         p_ok = torch.ones(B, n_p, dtype=torch.bool, device=position.device)

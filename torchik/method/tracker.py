@@ -28,6 +28,7 @@ residual_norm is the residual the step used (against x(t_k) in the paper's schem
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 import warnings
 from typing import Sequence
@@ -35,6 +36,7 @@ from typing import Sequence
 import torch
 
 from ..errors import InputError
+from .captured import CapturedStep, Replayed
 from .integrate import integrate, orthonormalize
 from .invariant import broken_subjects
 from .kinematics import KinematicModel
@@ -76,6 +78,8 @@ class DynamicalIK:
         self._batch: BatchSetup | None = None
         self._state: State | None = None
         self._rotation: torch.Tensor | None = None
+        self._captures: dict[int, CapturedStep] = {}  # per batch size, made at the first reset of that size
+        self._captured: CapturedStep | None = None
         largest = float(torch.cat((self.structure.position_gain, self.structure.orientation_gain)).max()) * self.dt
         if largest >= SCHEMES[settings.scheme]:
             warnings.warn(f"K dt = {largest:.3g} is beyond the {settings.scheme} scheme's stability bound "
@@ -115,6 +119,8 @@ class DynamicalIK:
         self.backend = self._backend_for(B)
         self._batch = BatchSetup.build(self.model, self.structure, self.settings, self.backend, B)
         self._no_restart = torch.zeros(B, dtype=torch.bool, device=state.base_position.device)
+        if self.settings.compile:
+            self._captured = self._captures.setdefault(B, CapturedStep(model, self.structure, self.settings, self._batch))
         return self.state
 
     @property
@@ -143,6 +149,10 @@ class DynamicalIK:
         q, batch, structure, model = self._require_state(), self._batch, self.structure, self.model
         assert batch is not None and self._rotation is not None  # set with the state by reset()
         self._check_targets(targets, batch)
+        if self._captured is not None and self._history.settled:
+            replayed = self._captured(q, self._rotation, self._history, targets, dt)
+            if replayed is not None:
+                return self._commit(replayed, start)
         dt = self._time_step(dt, batch.size)
         new_segment = self._no_restart
         if isinstance(dt, torch.Tensor):
@@ -189,6 +199,17 @@ class DynamicalIK:
             kinematics_time=kinematics_time,
             qp_time=qp_time,
         )
+        return self.state, diagnostics
+
+    def _commit(self, replayed: Replayed, start: float) -> tuple[State, StepDiagnostics]:
+        """A captured usual step's results as the tracker's state, history and diagnostics (nothing
+        dropped, projected, failed or restarted; its kinematics and QP are not timed apart: NaN)."""
+        self._state, self._rotation = replayed.state, replayed.rotation
+        self._history.record(replayed.targets, replayed.slope, replayed.dt)
+        none = self._no_restart
+        diagnostics = StepDiagnostics(replayed.mnte, replayed.residual_norm, replayed.active_constraints, ~none,
+                                      none.long(), none.long(), none, none, time.perf_counter() - start,
+                                      math.nan, math.nan)
         return self.state, diagnostics
 
     def _check_invariant(self, before: State) -> torch.Tensor:
