@@ -131,6 +131,13 @@ class DynamicalIK:
         assert rotation is not None  # set with the state
         return State(s.base_position, rotation, s.joint_positions, s.velocity)
 
+    @property
+    def captured(self) -> CapturedStep | None:
+        """The captured step for the current batch size (with settings.compile, else None): its
+        `compile_seconds` is how long the capture took (None before the first settled step), and
+        `unavailable` is True where it could not be made here (the step then runs eagerly)."""
+        return self._captured
+
     def _require_state(self) -> State:
         if self._state is None:
             raise InputError("call reset() before step()")
