@@ -3,7 +3,7 @@
 `capture(fn, inputs)` traces `fn` on fake tensors of the inputs' shapes into one graph of tensor
 operations (torch.fx's make_fx: Python runs once, its branches resolved for these shapes) and
 compiles the graph with TorchInductor: on CPU into fused C++ loops called from a C++ wrapper, on
-CUDA into Triton kernels replayed as a CUDA graph. The result is a plain function of the same
+CUDA into Triton kernels. The result is a plain function of the same
 tensors (same shapes, dtypes and devices) with no guards and no Python per operation: what a small
 batch's step spends in dispatching some 180 operations becomes one call.
 
@@ -47,9 +47,11 @@ def capture(fn: Callable[..., Sequence[torch.Tensor]], inputs: Sequence[torch.Te
             # would keep the graph out of TorchInductor's cache (it cannot hash one)
             graph = make_fx(fn, decomposition_table=_small_products(), tracing_mode="fake",
                             _allow_non_fake_inputs=True)(*examples)
-            on_cuda = any(t.device.type == "cuda" for t in inputs)
-            options = {"triton.cudagraphs": True} if on_cuda else {"cpp_wrapper": True}
-            compiled = compile_fx(graph, examples, config_patches=options)
+            # on CPU the C++ wrapper calls the kernels without Python between them; on CUDA, Triton
+            # kernels launched one by one: not a CUDA graph, whose outputs the next replay would
+            # overwrite while the tracker still holds them (the state, two steps of targets)
+            cpu = all(t.device.type == "cpu" for t in inputs)
+            compiled = compile_fx(graph, examples, config_patches={"cpp_wrapper": True} if cpu else {})
             compiled(*examples)  # the first call finishes the compilation
     except Exception as error:  # an environment without a compiler fails in many ways
         raise CaptureError(f"could not compile the step ({type(error).__name__}: {str(error).splitlines()[0]})") from error

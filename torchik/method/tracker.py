@@ -120,7 +120,11 @@ class DynamicalIK:
         self._batch = BatchSetup.build(self.model, self.structure, self.settings, self.backend, B)
         self._no_restart = torch.zeros(B, dtype=torch.bool, device=state.base_position.device)
         if self.settings.compile:
-            self._captured = self._captures.setdefault(B, CapturedStep(model, self.structure, self.settings, self._batch))
+            if B not in self._captures:
+                self._captures[B] = CapturedStep(model, self.structure, self.settings, self._batch)
+            self._captured = self._captures[B]
+            # a replayed step's diagnostics that do not change: all solved, nothing dropped or projected
+            self._usual = (~self._no_restart, self._no_restart.long())
         return self.state
 
     @property
@@ -213,9 +217,9 @@ class DynamicalIK:
         dropped, projected, failed or restarted; its kinematics and QP are not timed apart: NaN)."""
         self._state, self._rotation = replayed.state, replayed.rotation
         self._history.record(replayed.targets, replayed.slope, replayed.dt)
-        none = self._no_restart
-        diagnostics = StepDiagnostics(replayed.mnte, replayed.residual_norm, replayed.active_constraints, ~none,
-                                      none.long(), none.long(), none, none, time.perf_counter() - start,
+        solved, none = self._usual
+        diagnostics = StepDiagnostics(replayed.mnte, replayed.residual_norm, replayed.active_constraints, solved,
+                                      none, none, self._no_restart, self._no_restart, time.perf_counter() - start,
                                       math.nan, math.nan)
         return self.state, diagnostics
 
