@@ -18,7 +18,7 @@ process, load it (a few seconds of tracing and lookup).
 
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import torch
 
@@ -51,7 +51,7 @@ def capture(fn: Callable[..., Sequence[torch.Tensor]], inputs: Sequence[torch.Te
             # kernels launched one by one: not a CUDA graph, whose outputs the next replay would
             # overwrite while the tracker still holds them (the state, two steps of targets)
             cpu = all(t.device.type == "cpu" for t in inputs)
-            compiled = compile_fx(graph, examples, config_patches={"cpp_wrapper": True} if cpu else {})
+            compiled: Any = compile_fx(graph, examples, config_patches={"cpp_wrapper": True} if cpu else {})
             compiled(*examples)  # the first call finishes the compilation
     except Exception as error:  # an environment without a compiler fails in many ways
         raise CaptureError(f"could not compile the step ({type(error).__name__}: {str(error).splitlines()[0]})") from error

@@ -32,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 import time
 import warnings
+from typing import Callable
 
 import torch
 
@@ -76,7 +77,7 @@ class CapturedStep:
         self.batch = dataclasses.replace(batch, structured=False, buffers=None)
         kw: dict = dict(dtype=model.dtype, device=model.device)
         self.nominal = torch.full((batch.size, 1), float(settings.dt), **kw)
-        self._compiled = None
+        self._compiled: Callable[..., list] | None = None
         self.unavailable = False
         self.compile_seconds: float | None = None  # how long the capture took, once made
 
