@@ -93,6 +93,19 @@ def already_clean(targets: Targets, orthonormal_tolerance: float = 1e-9) -> torc
     return worst <= _orthonormal_tolerance(orthonormal_tolerance, targets.rotation.dtype) / 3
 
 
+_CONSTANTS: dict[tuple, torch.Tensor] = {}
+
+
+def _constant(shape: tuple[int, ...], value: bool | int, device: torch.device) -> torch.Tensor:
+    """A tensor of `value` (bool or long), made once per shape and device: the usual step's validity
+    masks and zero counts cost no allocation. Read only, as the tracker's shared all-False tensor."""
+    key = (shape, value, type(value), device)
+    if key not in _CONSTANTS:
+        _CONSTANTS[key] = torch.full(shape, value, dtype=torch.bool if isinstance(value, bool) else torch.long,
+                                     device=device)
+    return _CONSTANTS[key]
+
+
 PROJECT_TOLERANCE = 1e-2  # ||R^T R - I|| (Frobenius) up to which a target rotation is projected onto SO(3)
 
 
@@ -113,8 +126,7 @@ def clean_targets(targets: Targets, project_tolerance: float = PROJECT_TOLERANCE
     worst = float(worst_tensor)
     all_valid = math.isfinite(worst)
     if all_valid:
-        p_ok = torch.ones(B, n_p, dtype=torch.bool, device=position.device)
-        o_ok = torch.ones(B, n_o, dtype=torch.bool, device=position.device)
+        p_ok, o_ok = _constant((B, n_p), True, position.device), _constant((B, n_o), True, position.device)
     else:
         p_ok = torch.isfinite(position).all(-1) & torch.isfinite(linear_velocity).all(-1)
         o_ok = torch.isfinite(rotation).flatten(-2).all(-1) & torch.isfinite(angular_velocity).all(-1)
@@ -125,7 +137,7 @@ def clean_targets(targets: Targets, project_tolerance: float = PROJECT_TOLERANCE
         all_valid = bool(p_ok.all()) and bool(o_ok.all())
         deviation = rotation.transpose(-1, -2) @ rotation - eye
         worst = float(deviation.abs().max()) if n_o else 0.0
-    projected = torch.zeros(B, dtype=torch.long, device=position.device)
+    projected = _constant((B,), 0, position.device)
     if n_o and worst > orthonormal_tolerance / 3:
         error = deviation.flatten(-2).norm(dim=-1)  # [B,n_o]
         far = error > project_tolerance
@@ -139,5 +151,5 @@ def clean_targets(targets: Targets, project_tolerance: float = PROJECT_TOLERANCE
         rotation = torch.where(near[..., None, None], so3.project(rotation), rotation)
         projected = near.sum(-1)
     cleaned = Targets(position, linear_velocity, rotation, angular_velocity)
-    dropped = projected.new_zeros(B) if all_valid else (~p_ok).sum(-1) + (~o_ok).sum(-1)
+    dropped = _constant((B,), 0, position.device) if all_valid else (~p_ok).sum(-1) + (~o_ok).sum(-1)
     return CleanTargets(cleaned, p_ok, o_ok, dropped, projected, all_valid)
