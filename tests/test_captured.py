@@ -103,3 +103,15 @@ def test_compiled_by_torchinductor_the_step_gives_the_eager_states_to_1e_12(walk
     if tracker.captured.unavailable:
         pytest.skip("TorchInductor cannot compile here")
     assert assert_same_run(model, sequence, tracker=tracker) == [0, 1]
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_on_cuda_the_compiled_step_gives_the_eager_states(walking):
+    _, _, sequence = walking
+    model = load_model("human66", device="cuda")
+    on_cuda = TargetSequence(*(t.to("cuda") for t in vars(sequence).values()))
+    tracker = DynamicalIK(model, LINKS, dt=0.01, compile=True)
+    tracker.run(TargetSequence(*(t[:3] for t in vars(on_cuda).values())))
+    if tracker.captured is None or tracker.captured.unavailable:
+        pytest.skip("TorchInductor cannot compile for CUDA here")
+    assert assert_same_run(model, on_cuda, tracker=tracker) == [0, 1]
