@@ -48,7 +48,7 @@ def main() -> None:
         rows = {"step": d["step_time"]}
         assert tracker.captured is not None and tracker.captured.compile_seconds is not None
         print(f"capture: {tracker.captured.compile_seconds:.1f} s; steps run eagerly after the warm-up: "
-              f"{int((~torch.isnan(d['qp_time'])).sum())}")
+              f"{int((~torch.isnan(d['kinematics_time'])).sum())}")
     result = {name: {"median_ms": float(v.median()) * 1e3, "p99_ms": float(v.quantile(0.99)) * 1e3}
               for name, v in rows.items()}
     print(f"{args.model}, {len(links)} orientation targets + base position, scheme {args.scheme}, "

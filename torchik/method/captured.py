@@ -1,24 +1,24 @@
-"""The tracker's usual step, captured once and replayed compiled (`TrackerSettings(compile=True)`).
+"""The tracker's step, captured once and replayed compiled (`TrackerSettings(compile=True)`).
 
-After `reset` every shape of the step is fixed, and in the usual step nothing but the numbers
-changes from one step to the next. So the step's tensor work, from the targets to the next state
-and the diagnostics, is captured once (`capture.py`) and replayed: one compiled call in place of
-the eager step's some 180 operations, each paying the dispatcher's overhead.
+After `reset` every shape of the step is fixed, and from one step to the next nothing but the
+numbers changes. So the step's tensor work, from the targets to the next state and the diagnostics,
+is captured once (`capture.py`) and replayed: one compiled call in place of the eager step's some
+180 operations, each paying the dispatcher's overhead.
 
-The usual step is the one in which the eager step takes no data-dependent branch:
+What depends on the data becomes two flags, read in the step's one synchronisation:
 
-- the targets are finite and their rotations orthonormal (nothing to drop or project);
-- the history is settled (two steps taken, no dropped target remembered);
-- dt is positive, and no gap (at most max_gap nominal steps);
-- every subject's unconstrained minimiser is within its limits (then it is the QP's solution, as
-  the PIQP backend finds it: no solver runs);
-- the new base rotation is near enough to SO(3) for Newton-Schulz, and the invariant holds.
+- solvable: the targets are finite and their rotations orthonormal (nothing to drop or project) and
+  dt is positive, with no gap (at most max_gap nominal steps). Otherwise the eager step runs from
+  the same inputs, which the captured one left untouched: those cases keep its semantics exactly.
+- usual: besides, every subject's unconstrained minimiser is within its limits (then it is the QP's
+  solution, as the PIQP backend finds it: no solver runs), the new base rotation is near enough to
+  SO(3) for Newton-Schulz, and the invariant holds. Then the replayed step is complete. Otherwise
+  (a bound active, mostly) the captured step hands its QP to the backend, and the tracker ends the
+  step as the eager one does (integration, invariant).
 
-The captured step computes all of it and whether the step was usual: one flag, the step's one
-synchronisation. Where it was not (a bound active, a dropped target, a gap, ...), the eager step
-runs from the same inputs, which the captured one left untouched: every unusual case keeps the
-eager step's semantics exactly, at the price of the captured call. A usual step's results are the
-eager step's to rounding (fused sums in another order; 1e-12 on the states over a walking run).
+The replay needs a settled history (two steps taken, no dropped target remembered). A replayed
+step's results are the eager step's to rounding (fused sums in another order; 1e-12 on the states
+over a walking run).
 
 Opt-in, not automatic: the first capture of a model's step on a machine compiles C++ for tens of
 seconds (later ones load it from TorchInductor's cache in seconds), which pays off on long runs
@@ -40,7 +40,7 @@ from .capture import CaptureError, capture
 from .integrate import integrate, orthonormalize_unsynchronised
 from .invariant import invariant_measure
 from .kinematics import KinematicModel
-from .qp import unconstrained_if_feasible
+from .qp import QPProblem, unconstrained_if_feasible
 from .scheme import SchemeHistory, evaluation
 from .settings import TrackerSettings
 from .state import State
@@ -52,24 +52,28 @@ from .targets import Targets, already_clean
 
 @dataclasses.dataclass(frozen=True)
 class Replayed:
-    """A usual step's results: the next state (its base rotation orthonormalised as `rotation`), the
-    next velocity slope, a copy of the step's targets for the history, the dt the history records,
-    and the diagnostics mnte [B], residual_norm [B,n_p+n_o], active_constraints [B]."""
+    """A captured step's results: a copy of the step's targets for the history, the dt the history
+    records, the diagnostics mnte [B] and residual_norm [B,n_p+n_o]; and either, for a usual step,
+    the next state (its base rotation orthonormalised as `rotation`), the next velocity slope and
+    active_constraints [B] (problem None), or, where a bound is active or the invariant is to be
+    checked eagerly, the step's QP `problem` for the backend (the others None)."""
 
-    state: State
-    rotation: torch.Tensor
-    slope: torch.Tensor
     targets: Targets
     dt: float | torch.Tensor
     mnte: torch.Tensor
     residual_norm: torch.Tensor
-    active_constraints: torch.Tensor
+    problem: QPProblem | None = None
+    state: State | None = None
+    rotation: torch.Tensor | None = None
+    slope: torch.Tensor | None = None
+    active_constraints: torch.Tensor | None = None
 
 
 class CapturedStep:
-    """The usual step of a tracker's model, targets and settings for one batch size, captured at its
-    first call. Calling it returns the step's `Replayed` results, or None where the step was not usual
-    (or cannot be captured here: then a warning, once, and None from then on)."""
+    """The step of a tracker's model, targets and settings for one batch size, captured at its first
+    call. Calling it returns the step's `Replayed` results, or None where the eager step must run
+    instead (targets to drop or project, a gap; or no capture here: then a warning, once, and None
+    from then on)."""
 
     def __init__(self, model: KinematicModel, structure: StepStructure, settings: TrackerSettings, batch: BatchSetup):
         self.model, self.structure, self.settings = model, structure, settings
@@ -97,11 +101,16 @@ class CapturedStep:
         if self._compiled is None and not self._capture(inputs):
             return None
         assert self._compiled is not None  # captured above
-        p, R, R_o, s, nu, slope, mnte, residual_norm, active, usual, *copies = self._compiled(*inputs)
-        if not bool(usual):
+        p, R, R_o, s, nu, slope, mnte, residual_norm, active, flags, H, g, lb, ub, h, *copies = self._compiled(*inputs)
+        usual, solvable = flags.tolist()
+        if not solvable:
             return None
-        return Replayed(State(p, R, s, nu), R_o, slope, Targets(*copies), history.nominal_dt if dt is None else step,
-                        mnte, residual_norm, active)
+        done = dict(targets=Targets(*copies), dt=history.nominal_dt if dt is None else step, mnte=mnte,
+                    residual_norm=residual_norm)
+        if usual:
+            return Replayed(**done, state=State(p, R, s, nu), rotation=R_o, slope=slope, active_constraints=active)
+        G = self.batch.linear_rows
+        return Replayed(**done, problem=QPProblem(H, g, lb, ub, G, None if G is None else h))
 
     def _time_step(self, dt) -> torch.Tensor | None:
         """dt as [B,1] (the nominal one for None); None for a dt of the wrong shape, which the eager
@@ -140,9 +149,13 @@ class CapturedStep:
         R_o, near = orthonormalize_unsynchronised(R_next)
         kept = invariant_measure(State(p_next, R_next, s_next, nu_next), R_o, s, model.lower, model.upper) <= 1.0
         no_gap = (dt > 0) & (dt <= settings.max_gap * settings.dt)  # False for NaN
-        usual = already_clean(x) & no_gap.all() & feasible.all() & near & kept.all()
+        solvable = already_clean(x) & no_gap.all()  # the QP is the eager step's: a backend can solve it
+        usual = solvable & feasible.all() & near & kept.all()
         mnte, residual_norm = tracking_errors(at, kin, task)
         # d(nu)/dt between this step's midpoint and the last one's (SchemeHistory.advance)
         next_slope = (nu_next - nu) / (0.5 * (dt + last_dt))
-        return (p_next, R_next, R_o, s_next, nu_next, next_slope, mnte, residual_norm, task.problem.active(nu_next),
-                usual, *(t.clone() for t in targets[:4]))
+        problem = task.problem
+        h = problem.h if problem.h is not None else problem.g.new_zeros(())  # a placeholder: no coupled rows
+        return (p_next, R_next, R_o, s_next, nu_next, next_slope, mnte, residual_norm, problem.active(nu_next),
+                torch.stack((usual, solvable)), problem.H, problem.g, problem.lb, problem.ub, h,
+                *(t.clone() for t in targets[:4]))

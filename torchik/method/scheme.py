@@ -98,11 +98,14 @@ class SchemeHistory:
         assert self._previous is not None and self._before is not None, "a settled history"
         return self._previous, self._before
 
-    def record(self, x: Targets, slope: torch.Tensor, dt: "float | torch.Tensor") -> None:
-        """A step taken outside `evaluate` and `advance` (a captured one, on a settled history): x
-        its targets (all valid, a copy the caller will not write), slope the next velocity slope."""
+    def push(self, x: Targets) -> None:
+        """Remember the targets of a step that skipped `evaluate` (a captured one, on a settled
+        history): x all valid, a copy the caller will not write."""
         self._before, self._before_valid = self._previous, self._previous_valid
-        self._previous = x
+        self._previous, self._previous_valid = x, None
+
+    def advance_to(self, slope: torch.Tensor, dt: "float | torch.Tensor") -> None:
+        """`advance` with the next velocity slope computed elsewhere (by a captured step)."""
         self.velocity_slope, self.last_dt = slope, dt
         self.steps += 1
 

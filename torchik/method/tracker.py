@@ -163,7 +163,7 @@ class DynamicalIK:
         if self._captured is not None and self._history.settled:
             replayed = self._captured(q, self._rotation, self._history, targets, dt)
             if replayed is not None:
-                return self._commit(replayed, start)
+                return self._commit(replayed, q, targets, start)
         dt = self._time_step(dt, batch.size)
         new_segment = self._no_restart
         if isinstance(dt, torch.Tensor):
@@ -186,15 +186,7 @@ class DynamicalIK:
         qp_time = time.perf_counter() - qp_start
 
         nu = solution.x
-        p_next, R_next, s_next = integrate(q.base_position, q.base_rotation, q.joint_positions, nu, dt,
-                                           self.settings.rotation_integrator, self.settings.baumgarte_gain)
-        self._history.advance(nu, q.velocity, dt)
-        self._state = State(p_next, R_next, s_next, nu)
-        self._rotation = orthonormalize(R_next)
-        failed = self._check_invariant(q)
-        if failed is not self._no_restart:
-            self._restart(failed, targets)
-            self._history.forget(failed, previous=False)  # x_k, which it restarted from, stays
+        failed = self._advance(q, nu, dt, targets)
 
         mnte, residual_norm = tracking_errors(at, kin, task, valid)
         diagnostics = StepDiagnostics(
@@ -212,15 +204,42 @@ class DynamicalIK:
         )
         return self.state, diagnostics
 
-    def _commit(self, replayed: Replayed, start: float) -> tuple[State, StepDiagnostics]:
-        """A captured usual step's results as the tracker's state, history and diagnostics (nothing
-        dropped, projected, failed or restarted; its kinematics and QP are not timed apart: NaN)."""
-        self._state, self._rotation = replayed.state, replayed.rotation
-        self._history.record(replayed.targets, replayed.slope, replayed.dt)
+    def _advance(self, q: State, nu: torch.Tensor, dt: float | torch.Tensor, targets: Targets) -> torch.Tensor:
+        """The state after dt at velocity nu, the history advanced, the invariant checked: the subjects
+        that break it restart from `targets`. Returns the [B] bool of those (the shared all-False
+        tensor when none does)."""
+        p_next, R_next, s_next = integrate(q.base_position, q.base_rotation, q.joint_positions, nu, dt,
+                                           self.settings.rotation_integrator, self.settings.baumgarte_gain)
+        self._history.advance(nu, q.velocity, dt)
+        self._state = State(p_next, R_next, s_next, nu)
+        self._rotation = orthonormalize(R_next)
+        failed = self._check_invariant(q)
+        if failed is not self._no_restart:
+            self._restart(failed, targets)
+            self._history.forget(failed, previous=False)  # x_k, which it restarted from, stays
+        return failed
+
+    def _commit(self, replayed: Replayed, q: State, targets: Targets, start: float) -> tuple[State, StepDiagnostics]:
+        """A captured step's results as the tracker's state, history and diagnostics (nothing dropped
+        or projected). A usual step's are all there (its kinematics and QP not timed apart: NaN); a
+        step with an active bound brings its QP, which the backend solves here, and the step ends as
+        the eager one does (integration, invariant)."""
+        self._history.push(replayed.targets)
         solved, none = self._usual
-        diagnostics = StepDiagnostics(replayed.mnte, replayed.residual_norm, replayed.active_constraints, solved,
-                                      none, none, self._no_restart, self._no_restart, time.perf_counter() - start,
-                                      math.nan, math.nan)
+        failed, kinematics_time, qp_time = self._no_restart, math.nan, math.nan
+        if replayed.problem is None:
+            state, slope, active = replayed.state, replayed.slope, replayed.active_constraints
+            assert state is not None and slope is not None and active is not None  # a usual step's
+            self._state, self._rotation = state, replayed.rotation
+            self._history.advance_to(slope, replayed.dt)
+        else:
+            qp_start = time.perf_counter()
+            solution = self.backend.solve(replayed.problem, warm_start=q.velocity)
+            qp_time = time.perf_counter() - qp_start
+            failed, solved = self._advance(q, solution.x, replayed.dt, targets), solution.solved
+            active = replayed.problem.active(solution.x)
+        diagnostics = StepDiagnostics(replayed.mnte, replayed.residual_norm, active, solved, none, none, failed,
+                                      self._no_restart, time.perf_counter() - start, kinematics_time, qp_time)
         return self.state, diagnostics
 
     def _check_invariant(self, before: State) -> torch.Tensor:
