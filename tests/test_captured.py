@@ -40,7 +40,7 @@ def batch_of(sequence: TargetSequence, B: int) -> TargetSequence:
 
 def assert_same_run(model, sequence, atol=1e-12, tracker=None, links=LINKS, **settings):
     """Eager and captured runs of `sequence` give the same states and diagnostics; returns the
-    steps the captured one ran eagerly (a list of indices)."""
+    steps the captured one ran eagerly (a list of indices) and its trajectory."""
     eager = DynamicalIK(model, links, dt=0.01, **settings).run(sequence)
     tracker = tracker or DynamicalIK(model, links, dt=0.01, compile=True, **settings)
     replay = tracker.run(sequence)
@@ -51,13 +51,13 @@ def assert_same_run(model, sequence, atol=1e-12, tracker=None, links=LINKS, **se
     for name in EXACT:
         assert torch.equal(replay.diagnostics[name], eager.diagnostics[name]), name
     assert tracker.captured is not None and not tracker.captured.unavailable
-    return (~torch.isnan(replay.diagnostics["kinematics_time"])).nonzero().flatten().tolist()
+    return (~torch.isnan(replay.diagnostics["kinematics_time"])).nonzero().flatten().tolist(), replay
 
 
 @pytest.mark.parametrize("B", [1, 2])
 def test_every_settled_step_of_a_walking_run_is_replayed_and_gives_the_eager_states(walking, uncompiled, B):
     model, _, sequence = walking
-    assert assert_same_run(model, batch_of(sequence, B)) == [0, 1]  # the steps that settle the history
+    assert assert_same_run(model, batch_of(sequence, B))[0] == [0, 1]  # the steps that settle the history
 
 
 @pytest.mark.parametrize("case", ["paper scheme", "position targets off the base", "icub"])
@@ -71,9 +71,9 @@ def test_other_steps_replayed_give_the_eager_states_too(uncompiled, case):
     # iCub's walk passes near singular configurations, where H's conditioning turns the rounding of
     # sums taken in another order into 1e-9 differences of the velocity (1e-11 of the joints) for a
     # few steps: rounding that the conditioning amplifies, not another solution
-    eager_steps = assert_same_run(model, sequence, links=links, position_links=position_links,
-                                  scheme="paper" if case == "paper scheme" else "midpoint",
-                                  atol=1e-8 if case == "icub" else 1e-12)
+    eager_steps, _ = assert_same_run(model, sequence, links=links, position_links=position_links,
+                                     scheme="paper" if case == "paper scheme" else "midpoint",
+                                     atol=1e-8 if case == "icub" else 1e-12)
     assert eager_steps[:2] == [0, 1] and len(eager_steps) < len(sequence) // 2
 
 
@@ -87,7 +87,7 @@ def test_unusual_steps_run_eagerly_and_the_run_stays_the_eager_one(walking, unco
     faulty = dataclasses.replace(sequence, rotation=rotation, time=time)
     # eager: the steps that settle the history, the dropped target's and the two after that remember
     # it, the gap's and the one after (its history restarts); the jittered steps are replayed
-    assert assert_same_run(model, faulty) == [0, 1, 50, 51, 52, 53, 54, 100, 101]
+    assert assert_same_run(model, faulty)[0] == [0, 1, 50, 51, 52, 53, 54, 100, 101]
 
 
 def test_a_step_with_an_active_bound_has_its_qp_solved_by_the_backend(walking, uncompiled):
@@ -96,8 +96,8 @@ def test_a_step_with_an_active_bound_has_its_qp_solved_by_the_backend(walking, u
     narrow.upper = narrow.upper.clone()
     narrow.upper[:] = 0.05  # joints that walk reach their upper limits: the QP's bounds become active
     tracker = DynamicalIK(narrow, LINKS, dt=0.01, compile=True)
-    assert assert_same_run(narrow, sequence, tracker=tracker) == [0, 1]  # every settled step captured
-    replay = tracker.run(sequence)
+    eager_steps, replay = assert_same_run(narrow, sequence, tracker=tracker)
+    assert eager_steps == [0, 1]  # every settled step captured
     solved = torch.isfinite(replay.diagnostics["qp_time"]).nonzero().flatten().tolist()
     active = replay.diagnostics["active_constraints"][:, 0]
     assert solved == [0, 1] + [k for k in range(2, len(sequence)) if active[k] > 0] and len(solved) > 10
@@ -123,7 +123,7 @@ def test_compiled_by_torchinductor_the_step_gives_the_eager_states_to_1e_12(walk
     assert tracker.captured is not None
     if tracker.captured.unavailable:
         pytest.skip("TorchInductor cannot compile here")
-    assert assert_same_run(model, sequence, tracker=tracker) == [0, 1]
+    assert assert_same_run(model, sequence, tracker=tracker)[0] == [0, 1]
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
@@ -135,4 +135,4 @@ def test_on_cuda_the_compiled_step_gives_the_eager_states(walking):
     tracker.run(TargetSequence(*(t[:3] for t in vars(on_cuda).values())))
     if tracker.captured is None or tracker.captured.unavailable:
         pytest.skip("TorchInductor cannot compile for CUDA here")
-    assert assert_same_run(model, on_cuda, tracker=tracker) == [0, 1]
+    assert assert_same_run(model, on_cuda, tracker=tracker)[0] == [0, 1]
