@@ -2,22 +2,32 @@
 
 import pytest
 
+import torchik.method.captured as captured
 from torchik.cli import main
 from torchik.pipelines.bench import run, table
 
 
-def test_every_pipeline_runs_and_tracks_the_motion():
+def test_every_pipeline_runs_and_tracks_the_motion(monkeypatch):
     pytest.importorskip("pinocchio")
+    # the compiled loop's step uncompiled: its plumbing without TorchInductor's cost (test_captured compiles)
+    monkeypatch.setattr(captured, "capture", lambda fn, inputs: fn)
     results = run(models=("human48",), batches=(3,), loop_steps=20, min_seconds=0.5, max_steps=5, progress=False)
     pipelines = {r.pipeline for r in results}
-    assert {"torchik batched", "torchik+piqp", "pinocchio+piqp"} <= pipelines
+    assert {"torchik batched", "torchik+piqp", "torchik compiled", "pinocchio+piqp"} <= pipelines
     for r in results:
         assert r.subject_steps_per_second > 0 and r.steps > 0
         # each pipeline follows the walking-like motion from its exact start (MNTE 1e-4: 0.8 degrees)
         assert r.final_mnte < 1e-4, (r.pipeline, r.final_mnte)
     batched = next(r for r in results if r.pipeline == "torchik batched")
     assert batched.batch == 3 and batched.unsolved_fraction == 0.0
-    assert "human48" in table(results)
+    loops = [r for r in results if r.batch == 1]
+    assert all(0 < r.median_step_ms <= r.p99_step_ms for r in loops)
+    compiled = next(r for r in results if r.pipeline == "torchik compiled")
+    assert compiled.compile_seconds is not None and compiled.compile_seconds >= 0
+    printed = table(results)
+    assert "human48" in printed
+    if "pinocchio+daqp" in pipelines:  # the one-subject comparison, median to median
+        assert "human48, one subject: torchik compiled" in printed
 
 
 def test_bad_batch_size_is_refused_with_exit_code_2(capsys):

@@ -87,6 +87,22 @@ def test_track_a_scenario_end_to_end_with_report_and_trajectory(tmp_path, cli):
     assert code == 2 and "exists; add --force" in err
 
 
+def test_track_compile_replays_the_step_and_reports_what_the_eager_step_reports(tmp_path, cli, monkeypatch):
+    import torchik.method.captured as captured
+
+    monkeypatch.setattr(captured, "capture", lambda fn, inputs: fn)  # its logic; test_captured compiles
+    reports = {}
+    for flags in ((), ("--compile",)):
+        path = tmp_path / f"walk{len(flags)}.json"
+        code, _, err = cli("track", "--scenario", "walking", "--model", "human48", "--duration", "1", "--report", path,
+                           "--quiet", *flags)
+        assert code == 0, err
+        reports[flags] = json.loads(path.read_text())
+    eager, replayed = reports[()], reports[("--compile",)]
+    assert replayed["mnte"] == pytest.approx(eager["mnte"], rel=1e-6, abs=1e-15) and replayed["frames"] == eager["frames"]
+    assert replayed["compiled_steps"] == replayed["frames"] - 2 and "compiled_steps" not in eager
+
+
 def test_track_a_recording_file_and_refuse_bad_input(tmp_path, cli):
     from torchik.io import save_recording
     from torchik.method.models import TRACKED_LINKS, load_model

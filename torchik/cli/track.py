@@ -78,6 +78,9 @@ def add_parser(subparsers) -> None:
     track.add_argument("--scheme", default=TrackerSettings.scheme, choices=tuple(SCHEMES))
     track.add_argument("--backend", default=TrackerSettings.backend, choices=("auto", *BACKENDS),
                        help="QP solver: PIQP per subject, batched in torch, or auto (batched for batches, default)")
+    track.add_argument("--compile", action="store_true",
+                       help="replay the usual step compiled: several times faster per step, after a capture of seconds "
+                            "(tens the first time on a machine): for long recordings")
     track.add_argument("--max-gap", type=more_than_one, default=TrackerSettings.max_gap, metavar="STEPS",
                        help="a gap in time longer than this many frame intervals starts a new segment: the tracker "
                             f"restarts from the targets after it (default {TrackerSettings.max_gap:g})")
@@ -123,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
     model, subject, recording, links, source = _load(args, device)
     settings = TrackerSettings(position_gain=args.gain if args.position_gain is None else args.position_gain,
                                orientation_gain=args.gain if args.orientation_gain is None else args.orientation_gain,
-                               scheme=args.scheme, backend=args.backend, max_gap=args.max_gap)
+                               scheme=args.scheme, backend=args.backend, max_gap=args.max_gap, compile=args.compile)
     _check_stability(settings, nominal_dt(recording, settings))
     start = time.perf_counter()
     position_links = None

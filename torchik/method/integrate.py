@@ -53,6 +53,10 @@ def exponential_step(R: torch.Tensor, omega: torch.Tensor, dt: torch.Tensor | fl
     return 0.5 * R @ (3.0 * eye - R.transpose(-1, -2) @ R)
 
 
+# Newton-Schulz iterations that bring a deviation max |R^T R - I| below these to rounding (1e-16)
+ITERATIONS = ((1e-13, 0), (1e-8, 1), (1e-4, 2), (0.1, 3))  # beyond the last: the SVD projection
+
+
 def orthonormalize(R: torch.Tensor) -> torch.Tensor:
     """The nearest rotation to nearly orthonormal matrices. [...,3,3] -> [...,3,3].
 
@@ -63,14 +67,32 @@ def orthonormalize(R: torch.Tensor) -> torch.Tensor:
     X = R if R.dim() == 3 else R.reshape(-1, 3, 3)
     M = X.transpose(-1, -2) @ X
     deviation = float((M - eye).abs().max()) if X.shape[0] else 0.0
-    if deviation > 0.1:
+    if deviation > ITERATIONS[-1][0]:
         return so3.project(R)
-    iterations = 0 if deviation < 1e-13 else 1 if deviation < 1e-8 else 2 if deviation < 1e-4 else 3
+    iterations = next((count for below, count in ITERATIONS[:-1] if deviation < below), ITERATIONS[-1][1])
     for i in range(iterations):
         if i:
             M = X.transpose(-1, -2) @ X
         X = torch.baddbmm(X, X, M, beta=1.5, alpha=-0.5)  # X (3I - X^T X) / 2 in one call
     return X.reshape(R.shape)
+
+
+def orthonormalize_unsynchronised(R: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """`orthonormalize` without a synchronisation, for a captured step: every Newton-Schulz
+    iteration is computed and the one `orthonormalize` stops at picked by torch.where (from the
+    batch's largest deviation, as it does). R [B,3,3] -> (X [B,3,3], ok: a bool tensor, False where
+    `orthonormalize` would project by the SVD instead, or the deviation is not finite)."""
+    X, M = R, R.transpose(-1, -2) @ R
+    deviation = (M - so3.identity(R.dtype, R.device)).abs().amax()
+    iterates = [R]
+    for _ in range(ITERATIONS[-1][1]):
+        X = torch.baddbmm(X, X, M, beta=1.5, alpha=-0.5)
+        M = X.transpose(-1, -2) @ X
+        iterates.append(X)
+    picked = iterates[-1]
+    for below, count in reversed(ITERATIONS[:-1]):
+        picked = torch.where(deviation < below, iterates[count], picked)
+    return picked, deviation <= ITERATIONS[-1][0]
 
 
 def integrate(p: torch.Tensor, R: torch.Tensor, s: torch.Tensor, nu: torch.Tensor, dt: torch.Tensor | float,

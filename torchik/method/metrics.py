@@ -27,11 +27,13 @@ def orientation_error(R_target: torch.Tensor, R_estimate: torch.Tensor,
     orientation residual's norm. Beyond 90 degrees (cos < 0) the trace formula has no
     cancellation and is used as it is.
     """
-    cos = ((R_estimate * R_target).sum((-1, -2)) - 1.0) / 2.0  # tr(R_hat^T R) without the product
+    # 1 + cos = (1 + tr(R_hat^T R)) / 2, the trace without the product
+    one_plus_cos = (R_estimate * R_target).sum((-1, -2)).add_(1.0).mul_(0.5)
     if residual is None:
         residual = orientation_residual(R_target, R_estimate)
     sin_squared = residual.square().sum(-1)
-    return torch.where(cos > 0, sin_squared / (1.0 + cos.clamp(min=0.0)), 1.0 - cos)
+    # where cos <= 0 the quotient (maybe 0/0) is not used
+    return torch.where(one_plus_cos > 1.0, sin_squared / one_plus_cos, 2.0 - one_plus_cos)
 
 
 def mnte(R_target: torch.Tensor, R_estimate: torch.Tensor) -> torch.Tensor:

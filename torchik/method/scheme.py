@@ -84,18 +84,30 @@ class SchemeHistory:
         position (targets off the base link). Remembers x_k for the next steps."""
         x = clean.targets
         previous, before = self._remember(x, clean)
-        if self.scheme == "paper":
-            return Evaluation(x, previous, x.linear_velocity, x.angular_velocity, q.base_position, R_B,
-                              q.joint_positions)
-        # the Jacobian at mid-step: q + dt/2 times the velocity at the step's first quarter,
-        # extrapolated from the last two steps' velocities (each taken at its own midpoint)
-        half = 0.5 * dt
-        nu_ahead = axpy(q.velocity, 0.5 * self.last_dt + 0.25 * dt, self.velocity_slope)
-        R_mid = so3.exp(half * nu_ahead[:, 3:6]) @ R_B
-        s_mid = axpy(q.joint_positions, half, nu_ahead[:, 6:])
-        p_mid = axpy(q.base_position, half, nu_ahead[:, :3]) if positions else None
-        v_p, v_o = self._mean_velocity(before, previous, x, dt)
-        return Evaluation(previous, previous, v_p, v_o, p_mid, R_mid, s_mid)
+        return evaluation(self.scheme, q, R_B, x, previous, before, dt, self.last_dt, self.velocity_slope, positions,
+                          nominal=dt is self.nominal_dt and self.last_dt is self.nominal_dt)
+
+    @property
+    def settled(self) -> bool:
+        """Two steps taken and no dropped target remembered: the next step's evaluation is the usual
+        one (`evaluation` with every input a tensor), which a captured step replays."""
+        return self.steps >= 2 and self._previous_valid is None and self._before_valid is None
+
+    def remembered(self) -> tuple[Targets, Targets]:
+        """The targets one and two steps back (`settled` histories hold both)."""
+        assert self._previous is not None and self._before is not None, "a settled history"
+        return self._previous, self._before
+
+    def push(self, x: Targets) -> None:
+        """Remember the targets of a step that skipped `evaluate` (a captured one, on a settled
+        history): x all valid, a copy the caller will not write."""
+        self._before, self._before_valid = self._previous, self._previous_valid
+        self._previous, self._previous_valid = x, None
+
+    def advance_to(self, slope: torch.Tensor, dt: "float | torch.Tensor") -> None:
+        """`advance` with the next velocity slope computed elsewhere (by a captured step)."""
+        self.velocity_slope, self.last_dt = slope, dt
+        self.steps += 1
 
     def advance(self, nu: torch.Tensor, velocity_before: torch.Tensor, dt: "float | torch.Tensor") -> None:
         """After the step: nu [B,6+n] its solution, velocity_before [B,6+n] the previous one."""
@@ -118,25 +130,49 @@ class SchemeHistory:
         self._previous, self._previous_valid = Targets(*(v.clone() for v in vars(x).values())), valid
         return previous, before
 
-    def _mean_velocity(self, before: Targets | None, previous: Targets, current: Targets, dt):
-        """The average target velocity over [t_{k-1}, t_k]: the integral of the quadratic through the
-        last three samples (weights -1/12, 8/12, 5/12 for even steps), or the trapezoid rule while
-        there are only two. Returns linear [B,n_p,3] and angular [B,n_o,3] velocities."""
-        if before is None:
-            w_before, w_now = 0.0, 0.5
-        elif dt is self.nominal_dt and self.last_dt is self.nominal_dt:
-            w_before, w_now = -1.0 / 12.0, 5.0 / 12.0
-        else:
-            h1, h = self.last_dt, dt
-            w_before = (-h * h / (6.0 * h1 * (h1 + h)))[:, :, None]  # [B,1,1]
-            w_now = ((h / 3.0 + h1 / 2.0) / (h + h1))[:, :, None]
-        w_prev = 1.0 - w_now - w_before
 
-        def mean(name: str) -> torch.Tensor:
-            v = axpy(w_prev * getattr(previous, name), w_now, getattr(current, name))
-            return v if before is None else axpy(v, w_before, getattr(before, name))
+def evaluation(scheme: str, q: State, R_B: torch.Tensor, x: Targets, previous: Targets, before: Targets | None,
+               dt: "float | torch.Tensor", last_dt: "float | torch.Tensor", velocity_slope: torch.Tensor,
+               positions: bool, nominal: bool = False) -> Evaluation:
+    """The step's Evaluation (see `SchemeHistory`): x the targets x_k, previous x_{k-1} and before
+    x_{k-2} (None while there is none); dt, last_dt floats or [B,1]; velocity_slope [B,6+n];
+    nominal: dt and last_dt are the nominal step (the mean velocity's weights are then constants)."""
+    if scheme == "paper":
+        return Evaluation(x, previous, x.linear_velocity, x.angular_velocity, q.base_position, R_B, q.joint_positions)
+    # the Jacobian at mid-step: q + dt/2 times the velocity at the step's first quarter,
+    # extrapolated from the last two steps' velocities (each taken at its own midpoint)
+    half = 0.5 * dt
+    nu_ahead = axpy(q.velocity, 0.5 * last_dt + 0.25 * dt, velocity_slope)
+    R_mid = so3.exp(half * nu_ahead[:, 3:6]) @ R_B
+    s_mid = axpy(q.joint_positions, half, nu_ahead[:, 6:])
+    p_mid = axpy(q.base_position, half, nu_ahead[:, :3]) if positions else None
+    v_p, v_o = mean_velocity(before, previous, x, dt, last_dt, nominal)
+    return Evaluation(previous, previous, v_p, v_o, p_mid, R_mid, s_mid)
 
-        return mean("linear_velocity"), mean("angular_velocity")
+
+def mean_velocity(before: Targets | None, previous: Targets, current: Targets, dt, last_dt, nominal: bool):
+    """The average target velocity over [t_{k-1}, t_k]: the integral of the quadratic through the
+    last three samples (weights -1/12, 8/12, 5/12 for even steps), or the trapezoid rule while
+    there are only two. Returns linear [B,n_p,3] and angular [B,n_o,3] velocities."""
+    w_before: float | torch.Tensor
+    w_now: float | torch.Tensor
+    if before is None:
+        w_before, w_now = 0.0, 0.5
+    elif nominal:
+        w_before, w_now = -1.0 / 12.0, 5.0 / 12.0
+    else:
+        h1, h = last_dt, dt
+        w_before = -h * h / (6.0 * h1 * (h1 + h))
+        w_now = (h / 3.0 + h1 / 2.0) / (h + h1)
+        if isinstance(w_before, torch.Tensor) and isinstance(w_now, torch.Tensor):  # [B,1] -> [B,1,1], against [B,n,3]
+            w_before, w_now = w_before[:, :, None], w_now[:, :, None]
+    w_prev = 1.0 - w_now - w_before
+
+    def mean(name: str) -> torch.Tensor:
+        v = axpy(w_prev * getattr(previous, name), w_now, getattr(current, name))
+        return v if before is None else axpy(v, w_before, getattr(before, name))
+
+    return mean("linear_velocity"), mean("angular_velocity")
 
 
 def _keep_valid(valid, targets: Targets, dropped: torch.Tensor):

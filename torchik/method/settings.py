@@ -20,7 +20,9 @@ class TrackerSettings:
     rotation_integrator: 'baumgarte' (rho: baumgarte_gain, 1/s) or 'exp'; damping: lambda of
     ||nu||^2; limits: the joint limits' velocity bounds; backend: the QP solver, 'auto' (batched
     for a batch or on CUDA, else PIQP), 'piqp' or 'batched'; max_gap: a time step longer than this
-    many nominal steps is a gap, after which the tracker restarts from the targets (a new segment).
+    many nominal steps is a gap, after which the tracker restarts from the targets (a new segment);
+    compile: replay the usual step compiled (`captured.py`): fastest for small batches on long runs,
+    after a first capture of seconds (tens the first time on a machine).
     """
 
     position_gain: float = 20.0
@@ -33,6 +35,7 @@ class TrackerSettings:
     limits: LimitSettings = field(default_factory=LimitSettings)
     backend: str = "auto"
     max_gap: float = 5.0
+    compile: bool = False
 
 
 def check_settings(settings: TrackerSettings) -> None:

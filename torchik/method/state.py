@@ -38,7 +38,9 @@ class StepDiagnostics:
     joints beyond their limits) and the subject restarted from the step's targets;
     new_segment: [B] True where a gap in time longer than max_gap steps restarted the subject;
     step_time: seconds for the whole batch, of which kinematics_time (the kinematics calls) and
-    qp_time (the QP backend's solve).
+    qp_time (the QP backend's solve); for a step replayed compiled (TrackerSettings.compile), whose
+    parts are one computation, both NaN, or only kinematics_time where a bound was active and the
+    backend solved the step's QP.
     """
 
     mnte: torch.Tensor

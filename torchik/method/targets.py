@@ -71,6 +71,41 @@ def check_targets(targets: Targets, n_position: int, n_orientation: int, dtype: 
             raise InputError(f"targets.{name}: expected {dtype} on {device}, got {t.dtype} on {t.device}")
 
 
+def _worst(targets: Targets) -> tuple[torch.Tensor, torch.Tensor]:
+    """The largest deviation of a target rotation from orthonormality, NaN if any target is not
+    finite (NaN and Inf propagate through the sums), and the deviations R^T R - I [B,n_o,3,3]."""
+    R = targets.rotation
+    deviation = R.transpose(-1, -2) @ R - so3.identity(R.dtype, R.device)
+    largest = deviation.abs().amax() if R.shape[1] else R.new_zeros(())
+    # alpha 0 keeps NaN and Inf (0 * Inf is NaN); a finite sum that overflows only takes the slow path
+    values = torch.cat((targets.position, targets.linear_velocity, targets.angular_velocity), 1).sum()
+    return torch.add(largest, values, alpha=0.0), deviation
+
+
+def _orthonormal_tolerance(tolerance: float, dtype: torch.dtype) -> float:
+    return max(tolerance, 100 * torch.finfo(dtype).eps)  # float32 rounding
+
+
+def already_clean(targets: Targets, orthonormal_tolerance: float = 1e-9) -> torch.Tensor:
+    """A bool tensor: True where `clean_targets` would leave the targets as they are (every one
+    finite, every rotation orthonormal to a third of orthonormal_tolerance), without a synchronisation."""
+    worst, _ = _worst(targets)
+    return worst <= _orthonormal_tolerance(orthonormal_tolerance, targets.rotation.dtype) / 3
+
+
+_CONSTANTS: dict[tuple, torch.Tensor] = {}
+
+
+def _constant(shape: tuple[int, ...], value: bool | int, device: torch.device) -> torch.Tensor:
+    """A tensor of `value` (bool or long), made once per shape and device: the usual step's validity
+    masks and zero counts cost no allocation. Read only, as the tracker's shared all-False tensor."""
+    key = (shape, value, type(value), device)
+    if key not in _CONSTANTS:
+        _CONSTANTS[key] = torch.full(shape, value, dtype=torch.bool if isinstance(value, bool) else torch.long,
+                                     device=device)
+    return _CONSTANTS[key]
+
+
 PROJECT_TOLERANCE = 1e-2  # ||R^T R - I|| (Frobenius) up to which a target rotation is projected onto SO(3)
 
 
@@ -85,17 +120,13 @@ def clean_targets(targets: Targets, project_tolerance: float = PROJECT_TOLERANCE
     rotation, angular_velocity = targets.rotation, targets.angular_velocity
     B, n_p, n_o = position.shape[0], position.shape[1], rotation.shape[1]
     eye = so3.identity(rotation.dtype, rotation.device)
-    orthonormal_tolerance = max(orthonormal_tolerance, 100 * torch.finfo(rotation.dtype).eps)  # float32 rounding
-    deviation = rotation.transpose(-1, -2) @ rotation - eye
-    # one number for the usual case, one synchronisation: the largest deviation from
-    # orthonormality, NaN if any target is not finite (NaN and Inf propagate through the sums)
-    largest = deviation.abs().amax() if n_o else rotation.new_zeros(())
-    # alpha 0 keeps NaN and Inf (0 * Inf is NaN); a finite sum that overflows only takes the slow path
-    worst = float(torch.add(largest, torch.cat((position, linear_velocity, angular_velocity), 1).sum(), alpha=0.0))
+    orthonormal_tolerance = _orthonormal_tolerance(orthonormal_tolerance, rotation.dtype)
+    # one number for the usual case, one synchronisation
+    worst_tensor, deviation = _worst(targets)
+    worst = float(worst_tensor)
     all_valid = math.isfinite(worst)
     if all_valid:
-        p_ok = torch.ones(B, n_p, dtype=torch.bool, device=position.device)
-        o_ok = torch.ones(B, n_o, dtype=torch.bool, device=position.device)
+        p_ok, o_ok = _constant((B, n_p), True, position.device), _constant((B, n_o), True, position.device)
     else:
         p_ok = torch.isfinite(position).all(-1) & torch.isfinite(linear_velocity).all(-1)
         o_ok = torch.isfinite(rotation).flatten(-2).all(-1) & torch.isfinite(angular_velocity).all(-1)
@@ -106,7 +137,7 @@ def clean_targets(targets: Targets, project_tolerance: float = PROJECT_TOLERANCE
         all_valid = bool(p_ok.all()) and bool(o_ok.all())
         deviation = rotation.transpose(-1, -2) @ rotation - eye
         worst = float(deviation.abs().max()) if n_o else 0.0
-    projected = torch.zeros(B, dtype=torch.long, device=position.device)
+    projected = _constant((B,), 0, position.device)
     if n_o and worst > orthonormal_tolerance / 3:
         error = deviation.flatten(-2).norm(dim=-1)  # [B,n_o]
         far = error > project_tolerance
@@ -120,5 +151,5 @@ def clean_targets(targets: Targets, project_tolerance: float = PROJECT_TOLERANCE
         rotation = torch.where(near[..., None, None], so3.project(rotation), rotation)
         projected = near.sum(-1)
     cleaned = Targets(position, linear_velocity, rotation, angular_velocity)
-    dropped = projected.new_zeros(B) if all_valid else (~p_ok).sum(-1) + (~o_ok).sum(-1)
+    dropped = _constant((B,), 0, position.device) if all_valid else (~p_ok).sum(-1) + (~o_ok).sum(-1)
     return CleanTargets(cleaned, p_ok, o_ok, dropped, projected, all_valid)

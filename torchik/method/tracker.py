@@ -28,6 +28,7 @@ residual_norm is the residual the step used (against x(t_k) in the paper's schem
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 import warnings
 from typing import Sequence
@@ -35,20 +36,18 @@ from typing import Sequence
 import torch
 
 from ..errors import InputError
+from .captured import CapturedStep, Replayed
 from .integrate import integrate, orthonormalize
 from .invariant import broken_subjects
 from .kinematics import KinematicModel
-from .limits import LinearRows, linear_limit_bounds, velocity_bounds
-from .metrics import orientation_error
-from .qp import QPBackend, QPProblem, TreeHessian, make_backend
-from .residual import corrected_velocity, orientation_residual, position_residual
+from .qp import QPBackend, make_backend
 from .scheme import Evaluation, SchemeHistory
 from .settings import SCHEMES, TrackerSettings, check_settings
 from .state import State, StepDiagnostics, TargetSequence, Trajectory, TrajectoryBuffer
-from .step_kinematics import StepKinematics, given, step_kinematics
+from .step_kinematics import StepKinematics, step_kinematics
+from .step_task import step_task, tracking_errors
 from .structure import BatchSetup, StepStructure
 from .targets import Targets, check_targets, clean_targets
-from .task import Objective, normal_equations
 
 
 class DynamicalIK:
@@ -79,6 +78,8 @@ class DynamicalIK:
         self._batch: BatchSetup | None = None
         self._state: State | None = None
         self._rotation: torch.Tensor | None = None
+        self._captures: dict[int, CapturedStep] = {}  # per batch size, made at the first reset of that size
+        self._captured: CapturedStep | None = None
         largest = float(torch.cat((self.structure.position_gain, self.structure.orientation_gain)).max()) * self.dt
         if largest >= SCHEMES[settings.scheme]:
             warnings.warn(f"K dt = {largest:.3g} is beyond the {settings.scheme} scheme's stability bound "
@@ -118,6 +119,12 @@ class DynamicalIK:
         self.backend = self._backend_for(B)
         self._batch = BatchSetup.build(self.model, self.structure, self.settings, self.backend, B)
         self._no_restart = torch.zeros(B, dtype=torch.bool, device=state.base_position.device)
+        if self.settings.compile:
+            if B not in self._captures:
+                self._captures[B] = CapturedStep(model, self.structure, self.settings, self._batch)
+            self._captured = self._captures[B]
+            # a replayed step's diagnostics that do not change: all solved, nothing dropped or projected
+            self._usual = (~self._no_restart, self._no_restart.long())
         return self.state
 
     @property
@@ -127,6 +134,13 @@ class DynamicalIK:
         s, rotation = self._require_state(), self._rotation
         assert rotation is not None  # set with the state
         return State(s.base_position, rotation, s.joint_positions, s.velocity)
+
+    @property
+    def captured(self) -> CapturedStep | None:
+        """The captured step for the current batch size (with settings.compile, else None): its
+        `compile_seconds` is how long the capture took (None before the first settled step), and
+        `unavailable` is True where it could not be made here (the step then runs eagerly)."""
+        return self._captured
 
     def _require_state(self) -> State:
         if self._state is None:
@@ -146,6 +160,10 @@ class DynamicalIK:
         q, batch, structure, model = self._require_state(), self._batch, self.structure, self.model
         assert batch is not None and self._rotation is not None  # set with the state by reset()
         self._check_targets(targets, batch)
+        if self._captured is not None and self._history.settled:
+            replayed = self._captured(q, self._rotation, self._history, targets, dt)
+            if replayed is not None:
+                return self._commit(replayed, q, targets, start)
         dt = self._time_step(dt, batch.size)
         new_segment = self._no_restart
         if isinstance(dt, torch.Tensor):
@@ -158,42 +176,22 @@ class DynamicalIK:
         kin = self._kinematics(q, at, batch)
         kinematics_time = time.perf_counter() - kinematics_start
 
-        x = at.residual_targets
-        r_p = position_residual(x.position, kin.position)
-        r_o = orientation_residual(x.rotation, kin.rotation)
-        v_p = corrected_velocity(at.linear_velocity, r_p, structure.position_gain)
-        v_o = corrected_velocity(at.angular_velocity, r_o, structure.orientation_gain)
-        weights = (None, None) if clean.all_valid else (clean.position_valid.to(q.velocity.dtype),
-                                                        clean.orientation_valid.to(q.velocity.dtype))
-        objective, tree = self._objective(kin, v_p, v_o, weights, batch)
-        bounds = velocity_bounds(q.joint_positions, model.lower, model.upper, self.settings.limits, dt,
-                                 batch.base_bounds)
-        rows = self._coupled_rows(q.joint_positions, dt, batch)
-        problem = QPProblem(objective.H, objective.g, bounds.lower, bounds.upper, rows.G if rows else None,
-                            rows.h if rows else None, tree)
+        valid = None if clean.all_valid else (clean.position_valid, clean.orientation_valid)
+        weights = (None, None) if valid is None else (valid[0].to(q.velocity.dtype), valid[1].to(q.velocity.dtype))
+        task = step_task(model, structure, self.settings, batch, q.joint_positions, at, kin, dt, weights)
+        problem = task.problem
 
         qp_start = time.perf_counter()
         solution = self.backend.solve(problem, warm_start=q.velocity)
         qp_time = time.perf_counter() - qp_start
 
         nu = solution.x
-        p_next, R_next, s_next = integrate(q.base_position, q.base_rotation, q.joint_positions, nu, dt,
-                                           self.settings.rotation_integrator, self.settings.baumgarte_gain)
-        self._history.advance(nu, q.velocity, dt)
-        self._state = State(p_next, R_next, s_next, nu)
-        self._rotation = orthonormalize(R_next)
-        failed = self._check_invariant(q)
-        if failed is not self._no_restart:
-            self._restart(failed, targets)
-            self._history.forget(failed, previous=False)  # x_k, which it restarted from, stays
+        failed = self._advance(q, nu, dt, targets)
 
-        error = orientation_error(at.start_targets.rotation, kin.rotation,
-                                  r_o if at.start_targets is at.residual_targets else None)  # [B,n_o]
-        residual_norm = torch.linalg.vector_norm(torch.cat((r_p, r_o), dim=1), dim=-1)  # [B,n_p+n_o]
+        mnte, residual_norm = tracking_errors(at, kin, task, valid)
         diagnostics = StepDiagnostics(
-            mnte=error.mean(-1) if clean.all_valid else _mean_over(error, clean.orientation_valid),
-            residual_norm=residual_norm if clean.all_valid else
-            residual_norm * torch.cat((clean.position_valid, clean.orientation_valid), dim=1),
+            mnte=mnte,
+            residual_norm=residual_norm,
             active_constraints=problem.active(nu),
             solved=solution.solved,
             dropped=clean.dropped,
@@ -204,6 +202,44 @@ class DynamicalIK:
             kinematics_time=kinematics_time,
             qp_time=qp_time,
         )
+        return self.state, diagnostics
+
+    def _advance(self, q: State, nu: torch.Tensor, dt: float | torch.Tensor, targets: Targets) -> torch.Tensor:
+        """The state after dt at velocity nu, the history advanced, the invariant checked: the subjects
+        that break it restart from `targets`. Returns the [B] bool of those (the shared all-False
+        tensor when none does)."""
+        p_next, R_next, s_next = integrate(q.base_position, q.base_rotation, q.joint_positions, nu, dt,
+                                           self.settings.rotation_integrator, self.settings.baumgarte_gain)
+        self._history.advance(nu, q.velocity, dt)
+        self._state = State(p_next, R_next, s_next, nu)
+        self._rotation = orthonormalize(R_next)
+        failed = self._check_invariant(q)
+        if failed is not self._no_restart:
+            self._restart(failed, targets)
+            self._history.forget(failed, previous=False)  # x_k, which it restarted from, stays
+        return failed
+
+    def _commit(self, replayed: Replayed, q: State, targets: Targets, start: float) -> tuple[State, StepDiagnostics]:
+        """A captured step's results as the tracker's state, history and diagnostics (nothing dropped
+        or projected). A usual step's are all there (its kinematics and QP not timed apart: NaN); a
+        step with an active bound brings its QP, which the backend solves here, and the step ends as
+        the eager one does (integration, invariant)."""
+        self._history.push(replayed.targets)
+        solved, none = self._usual
+        failed, kinematics_time, qp_time = self._no_restart, math.nan, math.nan
+        if replayed.problem is None:
+            state, slope, active = replayed.state, replayed.slope, replayed.active_constraints
+            assert state is not None and slope is not None and active is not None  # a usual step's
+            self._state, self._rotation = state, replayed.rotation
+            self._history.advance_to(slope, replayed.dt)
+        else:
+            qp_start = time.perf_counter()
+            solution = self.backend.solve(replayed.problem, warm_start=q.velocity)
+            qp_time = time.perf_counter() - qp_start
+            failed, solved = self._advance(q, solution.x, replayed.dt, targets), solution.solved
+            active = replayed.problem.active(solution.x)
+        diagnostics = StepDiagnostics(replayed.mnte, replayed.residual_norm, active, solved, none, none, failed,
+                                      self._no_restart, time.perf_counter() - start, kinematics_time, qp_time)
         return self.state, diagnostics
 
     def _check_invariant(self, before: State) -> torch.Tensor:
@@ -236,26 +272,6 @@ class DynamicalIK:
         R_B = self._rotation
         assert R_B is not None  # set with the state
         return step_kinematics(self.model, self.structure, batch, self.settings.scheme, q, R_B, at)
-
-    def _objective(self, kin: StepKinematics, v_p: torch.Tensor, v_o: torch.Tensor,
-                   weights: tuple[torch.Tensor | None, torch.Tensor | None],
-                   batch: BatchSetup) -> tuple[Objective, TreeHessian | None]:
-        """The normal equations of ||v* - J nu||^2 + lambda ||nu||^2, with the Hessian in the tree's
-        structured form (and H None) when the batched backend solves on it."""
-        damping, structure = self.settings.damping, self.structure
-        objective = normal_equations(structure.task, kin.joint_axes, kin.position_jacobian, v_p, v_o, damping,
-                                     weights[0], weights[1], hessian=not batch.structured)
-        tree = TreeHessian.from_targets(given(structure.tree), kin.joint_axes, damping, len(self.position_links),
-                                        weights[1], weights[0]) if batch.structured else None
-        return objective, tree
-
-    def _coupled_rows(self, s: torch.Tensor, dt, batch: BatchSetup) -> LinearRows | None:
-        """The coupled limits A s <= b as rows on nu, G nu <= h (None when the model has none)."""
-        if batch.linear_rows is None:
-            return None
-        limits = self.model.linear_limits
-        assert limits is not None  # the rows exist
-        return LinearRows(batch.linear_rows, linear_limit_bounds(s, limits.A, limits.b, self.settings.limits, dt))
 
     def _check_targets(self, targets: Targets, batch: BatchSetup) -> None:
         """One comparison in the usual case; check_targets says what is wrong otherwise."""
@@ -349,8 +365,3 @@ class DynamicalIK:
         gaps = gaps.to(self.model.device)
         return lambda k: None if nominal[k] else gaps[k - 1].expand(B)
 
-
-def _mean_over(values: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
-    """The mean of values [B,n] over the valid [B,n] ones (0 where none is)."""
-    weight = valid.to(values.dtype)
-    return (values * weight).sum(-1) / weight.sum(-1).clamp(min=1.0)

@@ -7,6 +7,8 @@ motion (`periodic_motion`, every subject with its own phases), and the throughpu
 steps per second. In the same run, one subject at a time:
 
 - ``torchik+piqp``: torchik's tracker for one subject with the PIQP backend (qpsolvers);
+- ``torchik compiled``: the same with its usual step captured and replayed compiled
+  (`TrackerSettings(compile=True)`; the capture's seconds are reported, not timed);
 - ``pinocchio+daqp`` and ``pinocchio+piqp``: pinocchio's kinematics (forwardKinematics,
   computeJointJacobians, frame Jacobians in LOCAL_WORLD_ALIGNED), the same residuals, gains,
   damping and tanh velocity bounds (and iCub's coupled rows), the QP by daqp or PIQP through
@@ -17,6 +19,10 @@ The pinocchio loop uses torchik's residual and feed-forward (the second-order sc
 Jacobian at the step's start, not mid-step (which would cost a second kinematics pass): a cheaper
 step than torchik's, tracking to about 1e-5 MNTE where torchik reaches 1e-9. Every pipeline's final
 orientation error is printed beside its speed, so the comparison is between working pipelines.
+The loops run on one torch thread, as pinocchio does: one subject's operations are too small for
+threads to pay, and on a shared machine waiting threads cost more than they bring. Every loop's
+steps are timed one by one: the median and 99th percentile of a step are printed with
+the loops' throughput, and the ratio of torchik compiled's median step to pinocchio + daqp's.
 Results: a table on stdout and, with --json, a file.
 
     torchik bench [--models human66 human48 icub] [--batch 1 64 1024 8192] [--json bench.json]
@@ -25,6 +31,7 @@ Results: a table on stdout and, with --json, a file.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass
 
@@ -37,7 +44,7 @@ from ..method.qp import BatchedBackend
 from ..method.settings import TrackerSettings
 
 BATCHES = (1, 64, 1024, 8192)
-LOOPS = ("torchik+piqp", "pinocchio+daqp", "pinocchio+piqp")
+LOOPS = ("torchik+piqp", "torchik compiled", "pinocchio+daqp", "pinocchio+piqp")
 GAIN, DAMPING, RATE = TrackerSettings.position_gain, TrackerSettings.damping, 100.0
 
 
@@ -54,6 +61,9 @@ class Measurement:
     rescued_fraction: float | None = None  # batched backend: subjects solved by the interior point
     unsolved_fraction: float | None = None  # subjects that fell back to the clipped velocity
     final_mnte: float | None = None  # the tracking error at the end, to show the pipeline works
+    median_step_ms: float | None = None  # loops: a step's median and 99th percentile
+    p99_step_ms: float | None = None
+    compile_seconds: float | None = None  # torchik compiled: the capture's time (before the timed steps)
 
 
 def _motion(model, batch: int, steps: int, seed: int = 0):
@@ -109,13 +119,25 @@ def _targets(model, motion, links, device: str):
     return targets_from_motion(model, motion, links)
 
 
+@contextlib.contextmanager
+def _threads(count: int):
+    """torch on `count` threads for the block."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(count)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
 def _synchronize(device: str) -> None:
     if torch.device(device).type == "cuda":
         torch.cuda.synchronize()
 
 
-def bench_torchik_loop(name: str, steps: int, warmup: int = 10) -> Measurement:
-    """torchik's tracker for one subject with the PIQP backend, step after step."""
+def bench_torchik_loop(name: str, steps: int, warmup: int = 10, compiled: bool = False) -> Measurement:
+    """torchik's tracker for one subject with the PIQP backend, step after step; compiled: its usual
+    step replayed compiled (captured during the warm-up)."""
     from ..method.models import TRACKED_LINKS, load_model
     from ..method.tracker import DynamicalIK
     from ..synthetic.motion import targets_from_motion
@@ -124,18 +146,28 @@ def bench_torchik_loop(name: str, steps: int, warmup: int = 10) -> Measurement:
     motion = _motion(model, 1, warmup + steps)
     sequence = targets_from_motion(model, motion, links)
     tracker = DynamicalIK(model, links, position_gain=GAIN, orientation_gain=GAIN, dt=1 / RATE, damping=DAMPING,
-                          backend="piqp")
+                          backend="piqp", compile=compiled)
     tracker.reset(motion.state(0), batch=1)
+    targets = [sequence[k] for k in range(warmup + steps)]  # sliced before the clock starts, as pinocchio's arrays
     for k in range(warmup):
-        tracker.step(sequence[k])
-    active = 0.0
-    start = time.perf_counter()
+        tracker.step(targets[k])
+    active, times = [], []
     for k in range(warmup, warmup + steps):
-        _, diagnostics = tracker.step(sequence[k])
-        active += float(diagnostics.active_constraints.double().mean())
-    seconds = time.perf_counter() - start
-    return Measurement(name, "torchik+piqp", 1, steps, seconds, steps / seconds, active / steps,
-                       final_mnte=float(diagnostics.mnte.max()))
+        start = time.perf_counter()
+        _, diagnostics = tracker.step(targets[k])
+        times.append(time.perf_counter() - start)
+        active.append(diagnostics.active_constraints)
+    captured = tracker.captured
+    return Measurement(name, "torchik compiled" if compiled else "torchik+piqp", 1, steps, sum(times),
+                       steps / sum(times), float(torch.cat(active).double().mean()),
+                       final_mnte=float(diagnostics.mnte.max()), **_percentiles(times),
+                       compile_seconds=None if captured is None else captured.compile_seconds)
+
+
+def _percentiles(times: list[float]) -> dict:
+    """A step's median and 99th percentile in ms."""
+    ms = 1e3 * np.asarray(times)
+    return dict(median_step_ms=float(np.median(ms)), p99_step_ms=float(np.percentile(ms, 99)))
 
 
 class PinocchioTracker:
@@ -249,12 +281,14 @@ def bench_pinocchio_loop(name: str, solver: str, steps: int, warmup: int = 10) -
     mean = lambda x, k: (x[k - 1] + x[k]) / 2  # noqa: E731
     for k in range(1, warmup + 1):
         q = tracker.step(q, p[k - 1], mean(v, k), R[k - 1], mean(w, k), dt)
-    start = time.perf_counter()
+    times = []
     for k in range(warmup + 1, warmup + steps + 1):
+        start = time.perf_counter()
         q = tracker.step(q, p[k - 1], mean(v, k), R[k - 1], mean(w, k), dt)
-    seconds = time.perf_counter() - start
+        times.append(time.perf_counter() - start)
     error = tracker.orientation_error(q, R[warmup + steps])
-    return Measurement(name, f"pinocchio+{solver}", 1, steps, seconds, steps / seconds, final_mnte=error)
+    return Measurement(name, f"pinocchio+{solver}", 1, steps, sum(times), steps / sum(times), final_mnte=error,
+                       **_percentiles(times))
 
 
 def run(models=MODELS, batches=BATCHES, device: str = "cpu", dtype=torch.float64, loops: bool = True,
@@ -266,7 +300,7 @@ def run(models=MODELS, batches=BATCHES, device: str = "cpu", dtype=torch.float64
     if loops:  # before any measurement: a missing library is said at once
         optional("pinocchio", "bench", "torchik bench's per-subject loops (or --no-loops)")
         plan += [(name, loop, 1) for name in models for loop in LOOPS
-                 if loop == "torchik+piqp" or loop.split("+")[1] in qpsolvers.available_solvers]
+                 if loop.startswith("torchik") or loop.split("+")[1] in qpsolvers.available_solvers]
     bar = None
     if progress:
         from tqdm import tqdm
@@ -279,27 +313,40 @@ def run(models=MODELS, batches=BATCHES, device: str = "cpu", dtype=torch.float64
             bar.update()
         if pipeline == "batched":
             results.append(bench_batched(name, B, device, dtype, min_seconds, max_steps))
-        elif pipeline == "torchik+piqp":
-            results.append(bench_torchik_loop(name, loop_steps))
+        elif pipeline.startswith("torchik"):
+            with _threads(1):
+                results.append(bench_torchik_loop(name, loop_steps, compiled=pipeline == "torchik compiled"))
         else:
-            results.append(bench_pinocchio_loop(name, pipeline.split("+")[1], loop_steps))
+            with _threads(1):
+                results.append(bench_pinocchio_loop(name, pipeline.split("+")[1], loop_steps))
     if bar is not None:
         bar.close()
     return results
 
 
 def table(results: list[Measurement]) -> str:
-    lines = [f"{'model':8s} {'pipeline':16s} {'B':>6s} {'subject-steps/s':>16s} {'vs best loop':>12s} "
-             f"{'ms/step':>8s} {'active/subj':>11s} {'iters':>6s} {'rescued':>8s} {'final MNTE':>10s}"]
+    """The measurements as a table: throughput, its ratio to the best peer loop (pinocchio's, assembled
+    from existing libraries), a step's mean, median and 99th percentile (loops), and one line per
+    model comparing torchik's compiled step with pinocchio + daqp's, median to median."""
+    lines = [f"{'model':8s} {'pipeline':16s} {'B':>6s} {'subject-steps/s':>16s} {'vs best peer':>12s} "
+             f"{'ms/step':>8s} {'p50 ms':>7s} {'p99 ms':>7s} {'active/subj':>11s} {'iters':>6s} {'rescued':>8s} "
+             f"{'final MNTE':>10s}"]
     best: dict[str, float] = {}
     for r in results:
-        if r.pipeline != "torchik batched":
+        if r.pipeline.startswith("pinocchio"):
             best[r.model] = max(best.get(r.model, 0.0), r.subject_steps_per_second)
+    fmt = lambda v, f: "-" if v is None else format(v, f)  # noqa: E731
     for r in results:
         ratio = f"{r.subject_steps_per_second / best[r.model]:.1f}x" if r.model in best else "-"
-        fmt = lambda v, f: "-" if v is None else format(v, f)  # noqa: E731
         lines.append(f"{r.model:8s} {r.pipeline:16s} {r.batch:>6d} {r.subject_steps_per_second:>16,.0f} {ratio:>12s} "
-                     f"{1e3 * r.seconds / r.steps:>8.2f} {fmt(r.active_constraints_per_subject, '.2f'):>11s} "
-                     f"{fmt(r.iterations_mean, '.2f'):>6s} {fmt(r.rescued_fraction, '.1%'):>8s} "
-                     f"{fmt(r.final_mnte, '.1e'):>10s}")
+                     f"{1e3 * r.seconds / r.steps:>8.2f} {fmt(r.median_step_ms, '.3f'):>7s} {fmt(r.p99_step_ms, '.3f'):>7s} "
+                     f"{fmt(r.active_constraints_per_subject, '.2f'):>11s} {fmt(r.iterations_mean, '.2f'):>6s} "
+                     f"{fmt(r.rescued_fraction, '.1%'):>8s} {fmt(r.final_mnte, '.1e'):>10s}")
+    by = {(r.model, r.pipeline): r for r in results}
+    for model in dict.fromkeys(r.model for r in results):
+        ours, peer = by.get((model, "torchik compiled")), by.get((model, "pinocchio+daqp"))
+        if ours is not None and peer is not None and ours.median_step_ms and peer.median_step_ms:
+            lines.append(f"{model}, one subject: torchik compiled {ours.median_step_ms:.3f} ms median step (p99 "
+                         f"{ours.p99_step_ms:.3f}), pinocchio+daqp {peer.median_step_ms:.3f} ms: "
+                         f"{peer.median_step_ms / ours.median_step_ms:.2f}x (capture {fmt(ours.compile_seconds, '.1f')} s)")
     return "\n".join(lines)

@@ -61,6 +61,8 @@ def track_recording(model: KinematicModel, recording: Recording, links, settings
         segments=segments(time, d["new_segment"][:, 0]),
         active_constraints_mean=float(d["active_constraints"].double().mean()), interrupted=trajectory.interrupted,
     )
+    if settings.compile:  # the steps replayed compiled (their kinematics are not timed apart: NaN)
+        report["compiled_steps"] = int(torch.isnan(d["kinematics_time"]).sum())
     if position_links is not None:
         error = position_errors(model, trajectory, sequence, position_links)[:, 0]  # [T,P]
         report["position_error_m"] = {link: summary(e[torch.isfinite(e)], time[torch.isfinite(e)], transient)

@@ -85,9 +85,12 @@ def unconstrained_if_feasible(problem: QPProblem) -> tuple[torch.Tensor, torch.T
     Returns x [B,N] and feasible [B] bool (False also where H is not numerically positive definite).
     """
     L, info = torch.linalg.cholesky_ex(problem.dense_hessian)
-    x = torch.cholesky_solve(-problem.g.unsqueeze(-1), L).squeeze(-1)
-    # within every bound (NaN fails the comparison) and finite
-    feasible = (info == 0) & ((x.clamp(problem.lb, problem.ub) == x) & torch.isfinite(x)).all(-1)
+    # two triangular solves: cholesky_solve does the same with copies and checks that cost, for
+    # one subject, twice as much again
+    x = torch.linalg.solve_triangular(L, -problem.g.unsqueeze(-1), upper=False)
+    x = torch.linalg.solve_triangular(L.transpose(-1, -2), x, upper=True).squeeze(-1)
+    # within every bound, and finite: Inf - Inf and NaN are not 0
+    feasible = (info == 0) & (x.clamp(problem.lb, problem.ub) - x == 0).all(-1)
     if (rows := problem.rows) is not None:
         G, h = rows
         feasible &= ((G @ x.unsqueeze(-1)).squeeze(-1) <= h).all(-1)
