@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError, optional
-from ..io.files import replacing
+from ..io.files import PartFile
 from ..method.kinematics import KinematicModel
 from ..method.state import TargetSequence, Trajectory
 from .evaluation import time_chunks
@@ -71,132 +71,188 @@ def log_trajectory(path: str | Path, model: KinematicModel, links: Sequence[str]
     urdf: the model's URDF (a file or its text) whose visual shapes draw the body (default: the
     model's source file when it has one; without one the body is the skeleton only).
     subjects: which of the B subjects get their own entity tree (default all); the aggregate
-    covers all. chunk: rows per kinematics call. progress: a bar once the writing has lasted a
-    second. The file is written beside `path` and moved onto it when complete: an interrupted
-    call leaves no partial file. Returns the path.
+    covers all. chunk: time steps logged at a time (`RrdWriter`), rows per kinematics call.
+    progress: a bar once the writing has lasted a second. The file is written beside `path` and
+    moved onto it when complete: an interrupted call leaves no partial file. Returns the path.
     """
-    links, path = tuple(links), Path(path)
-    position_links = tuple(position_links) if position_links is not None else (model.base_link,)
     T, B = trajectory.joint_positions.shape[:2]
-    subjects = list(range(B)) if subjects is None else list(subjects)
-    if not subjects or not all(0 <= i < B for i in subjects):
-        raise InputError(f"subjects: expected indices in [0, {B}), got {subjects}")
-    if trajectory.time.shape != (T,):
-        raise InputError(f"trajectory.time: expected shape [{T}], got {list(trajectory.time.shape)}")
     if targets is not None:
-        _check_targets(targets, T, B, len(links), len(position_links))
-    if urdf is None and Path(model.source).is_file():
-        urdf = model.source
-    shapes = visuals(urdf) if urdf is not None else {}
-    unknown = sorted(set(shapes) - set(model.link_names))
-    if unknown:
-        raise InputError(f"urdf: links {unknown} are not in model {model.name!r}: is it the model's URDF?")
-    per_subject, per_batch = _split_diagnostics(trajectory.diagnostics, T, B, len(links) + len(position_links))
+        _check_targets(targets, T, B, len(links), len(position_links) if position_links is not None else 1)
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(subjects) + 1, desc=f"writing {path.name}", unit="part", leave=False, delay=1.0)
-    columns = _Columns.of(model, links, position_links, shapes, trajectory, per_subject, chunk)
-    time = columns.time
-    if bar is not None:
-        bar.update()
-
-    rec = rr.RecordingStream(app_id, recording_id=uuid.uuid4())  # else one id per process: viewers would merge files
+        bar = tqdm(total=T, desc=f"writing {Path(path).name}", unit="step", leave=False, delay=1.0)
     try:
-        with replacing(path) as part:
-            rec.save(part, default_blueprint=blueprint(subjects, aggregate=B > 1))
-            rec.send_recording_name(path.stem)
-            rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-            for i in subjects:
-                _log_subject(rec, columns, i, targets, trajectory.time, axis_length)
+        with RrdWriter(path, model, links, position_links=position_links, urdf=urdf, subjects=subjects, app_id=app_id,
+                       axis_length=axis_length, chunk=chunk) as writer:
+            for start in range(0, max(T, 1), chunk):
+                writer.write(trajectory.part(start, start + chunk),
+                             None if targets is None else targets.part(start, min(start + chunk, T)))
                 if bar is not None:
-                    bar.update()
-            for name, values in per_batch.items():
-                _send_scalars(rec, f"/timing/{name}", time, values * 1e3, [f"{name.replace('_', ' ')} (ms)"])
-            if B > 1:
-                for name, values in per_subject.items():
-                    with warnings.catch_warnings():  # a step where every subject's value is NaN stays NaN
-                        warnings.simplefilter("ignore", RuntimeWarning)
-                        summary = np.stack((np.nanmean(values, axis=1), np.nanmax(values, axis=1)), axis=1)
-                    _send_scalars(rec, f"/aggregate/{GROUPS.get(name, 'diagnostics')}/{name}", time, summary,
-                                  ["mean", "max"])
-            rec.flush()
-            rec.disconnect()  # closes the file, with its footer, before it is moved into place
+                    bar.update(min(chunk, T - start))
+            return writer.commit()
     finally:
         if bar is not None:
             bar.close()
-    return path
+
+
+class RrdWriter:
+    """A rerun recording written as a run goes: `write` each part of the trajectory (with its
+    targets) in order, then `commit`; the file streams to a hidden path beside `path`, moved onto it
+    by `commit` (leaving the `with` block without it leaves nothing). Arguments as `log_trajectory`'s;
+    memory is one part's."""
+
+    def __init__(self, path: str | Path, model: KinematicModel, links: Sequence[str], *,
+                 position_links: Sequence[str] | None = None, urdf: str | Path | None = None,
+                 subjects: Sequence[int] | None = None, app_id: str = "torchik", axis_length: float = 0.08,
+                 chunk: int = 4096):
+        self.model, self.links = model, tuple(links)
+        self.position_links = tuple(position_links) if position_links is not None else (model.base_link,)
+        if urdf is None and Path(model.source).is_file():
+            urdf = model.source
+        self.shapes = visuals(urdf) if urdf is not None else {}
+        unknown = sorted(set(self.shapes) - set(model.link_names))
+        if unknown:
+            raise InputError(f"urdf: links {unknown} are not in model {model.name!r}: is it the model's URDF?")
+        # every link that is tracked or drawn, tracked ones first
+        self.drawn = self.links + tuple(n for n in model.link_names if n in self.shapes and n not in self.links)
+        self.subjects = None if subjects is None else list(subjects)
+        self.app_id, self.axis_length, self.chunk = app_id, axis_length, chunk
+        self.file = PartFile(path)
+        self.rec: rr.RecordingStream | None = None
+        self.batch = 0
+        self.named: set[str] = set()  # the series whose names are logged (once, static)
+
+    def write(self, trajectory: Trajectory, targets: TargetSequence | None = None) -> None:
+        """A part of the run: trajectory [t,B,...] with its diagnostics, targets [t,B,...] or None."""
+        T, B = trajectory.joint_positions.shape[:2]
+        if trajectory.time.shape != (T,):
+            raise InputError(f"trajectory.time: expected shape [{T}], got {list(trajectory.time.shape)}")
+        if targets is not None:
+            _check_targets(targets, T, B, len(self.links), len(self.position_links))
+        per_subject, per_batch = _split_diagnostics(trajectory.diagnostics, T, B, len(self.links) + len(self.position_links))
+        rec = self.rec if self.rec is not None else self._open(B, targets is not None)
+        if B != self.batch:
+            raise InputError(f"a part of {B} subjects; the recording's earlier parts had {self.batch}")
+        columns = _Columns.of(self.model, self.links, self.drawn, trajectory, per_subject, self.chunk)
+        for i in self.subjects or ():
+            self._log_subject(columns, i, targets, trajectory.time)
+        for name, values in per_batch.items():
+            self._scalars(f"/timing/{name}", columns.time, values * 1e3, [f"{name.replace('_', ' ')} (ms)"])
+        if B > 1:
+            for name, values in per_subject.items():
+                with warnings.catch_warnings():  # a step where every subject's value is NaN stays NaN
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    summary = np.stack((np.nanmean(values, axis=1), np.nanmax(values, axis=1)), axis=1)
+                self._scalars(f"/aggregate/{GROUPS.get(name, 'diagnostics')}/{name}", columns.time, summary,
+                              ["mean", "max"])
+        rec.flush()  # to the file: what rerun holds stays one part's
+
+    def commit(self) -> Path:
+        """The recording closed (with its footer) and moved onto the path; returns it."""
+        if self.rec is None:
+            raise InputError("no part of the trajectory was written")
+        self.rec.flush()
+        self.rec.disconnect()
+        self.rec = None
+        return self.file.commit()
+
+    def close(self) -> None:
+        """Stop writing; without commit, the file is removed."""
+        if self.rec is not None:
+            self.rec.disconnect()
+            self.rec = None
+        self.file.discard()
+
+    def __enter__(self) -> "RrdWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _open(self, B: int, targets: bool) -> rr.RecordingStream:
+        """The file started: blueprint, name, coordinates and what does not change over time."""
+        self.subjects = list(range(B)) if self.subjects is None else self.subjects
+        if not self.subjects or not all(0 <= i < B for i in self.subjects):
+            raise InputError(f"subjects: expected indices in [0, {B}), got {self.subjects}")
+        # a fresh id: one per process (the default) would make viewers merge the files
+        rec = rr.RecordingStream(self.app_id, recording_id=uuid.uuid4())
+        rec.save(self.file.part, default_blueprint=blueprint(self.subjects, aggregate=B > 1))
+        self.rec, self.batch = rec, B
+        rec.send_recording_name(self.file.path.stem)
+        rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        for i in self.subjects:
+            root, color = f"/subject/{i}", PALETTE[i % len(PALETTE)]
+            for k, link in enumerate(self.drawn):
+                name = f"{root}/estimate/{rr.escape_entity_path_part(link)}"
+                if k < len(self.links):
+                    rec.log(name, rr.TransformAxes3D(self.axis_length), static=True)
+                log_visuals(rec, f"{name}/visual", self.shapes.get(link, ()), color)
+            rec.log(f"{root}/skeleton", rr.LineStrips3D.from_fields(radii=[0.01], colors=[color]), static=True)
+            for link in self.links if targets else ():
+                rec.log(f"{root}/target/{rr.escape_entity_path_part(link)}", rr.TransformAxes3D(1.5 * self.axis_length),
+                        static=True)
+        return rec
+
+    def _log_subject(self, c: "_Columns", i: int, targets: TargetSequence | None, target_time: torch.Tensor) -> None:
+        """Subject i's part: link poses, skeleton, targets, diagnostics, residuals, joints."""
+        rec, root, model = self.rec, f"/subject/{i}", self.model
+        assert rec is not None  # opened by the first write
+        T, time = len(c.joint_positions), c.time
+        for k, link in enumerate(self.drawn):
+            rec.send_columns(f"{root}/estimate/{rr.escape_entity_path_part(link)}", [time], rr.Transform3D.columns(
+                translation=c.position[:, i, k], quaternion=c.quaternion[:, i, k]))
+        rec.send_columns(f"{root}/skeleton", [time], rr.LineStrips3D.columns(
+            strips=c.bones[:, i].reshape(-1, 2, 3)).partition(np.full(T, c.bones.shape[2])))
+        if targets is not None:
+            _log_targets(rec, f"{root}/target", target_time, targets, i, self.links, self.position_links,
+                         c.position[:, i, :len(self.links)])
+        for name, values in c.per_subject.items():
+            self._scalars(f"{root}/{GROUPS.get(name, 'diagnostics')}/{name}", time, values[:, i])
+        for j, link in enumerate(self.position_links + self.links):
+            kind = "position" if j < len(self.position_links) else "orientation"
+            self._scalars(f"{root}/residual/{kind}/{rr.escape_entity_path_part(link)}", time, c.residual[:, i, j])
+        lower, upper = (t.detach().to("cpu", torch.float64).numpy() for t in (model.lower, model.upper))
+        limited = np.isfinite(lower) & np.isfinite(upper) & (upper - lower < NO_LIMIT)
+        for j, joint in enumerate(model.joint_names):
+            values, names = c.joint_positions[:, i, j], None
+            if limited[j]:
+                values = np.stack((values, np.full(T, lower[j]), np.full(T, upper[j])), axis=1)
+                names = ["angle", "lower limit", "upper limit"]
+            self._scalars(f"{root}/joints/{rr.escape_entity_path_part(joint)}", time, values, names)
+
+    def _scalars(self, path: str, time: rr.TimeColumn, values: np.ndarray, names: list[str] | None = None) -> None:
+        """`_send_scalars`, the series' names logged with the first part only."""
+        assert self.rec is not None  # opened by the first write
+        _send_scalars(self.rec, path, time, values, names if path not in self.named else None)
+        self.named.add(path)
 
 
 @dataclass
 class _Columns:
-    """What log_trajectory sends, computed once for all subjects: the drawn links (tracked first)
-    and their poses [T,B,D,3(,4)] (float32), the bones [T,B,E,2,3], the joints [T,B,n] with their
-    effective limits, the residual norms [T,B,targets] and the per-subject diagnostics."""
+    """What a part sends, computed once for all subjects: the drawn links' poses [T,B,D,3(,4)]
+    (float32), the bones [T,B,E,2,3], the joints [T,B,n], the residual norms [T,B,targets] and the
+    per-subject diagnostics."""
 
-    model: KinematicModel
-    links: tuple[str, ...]
-    position_links: tuple[str, ...]
-    shapes: dict[str, list[Visual]]
-    drawn: tuple[str, ...]
     time: rr.TimeColumn
     position: np.ndarray
     quaternion: np.ndarray
     bones: np.ndarray
     joint_positions: np.ndarray
     residual: np.ndarray
-    limited: np.ndarray
-    lower: np.ndarray
-    upper: np.ndarray
     per_subject: dict[str, np.ndarray]
 
     @staticmethod
-    def of(model: KinematicModel, links: tuple[str, ...], position_links: tuple[str, ...],
-           shapes: dict[str, list[Visual]], trajectory: Trajectory, per_subject: dict[str, np.ndarray],
-           chunk: int) -> "_Columns":
-        # every link that is tracked or drawn, tracked ones first
-        drawn = links + tuple(name for name in model.link_names if name in shapes and name not in links)
+    def of(model: KinematicModel, links: tuple[str, ...], drawn: tuple[str, ...], trajectory: Trajectory,
+           per_subject: dict[str, np.ndarray], chunk: int) -> "_Columns":
         rotation, position = _link_poses(model, drawn, trajectory, chunk)  # [T,B,D,3,3], [T,B,D,3] float32
         child, parent = _bones(model, links)
         bones = torch.stack((position[:, :, child], position[:, :, parent]), dim=-2).numpy()  # [T,B,E,2,3]
         host = lambda t: t.detach().to("cpu", torch.float64).numpy()  # noqa: E731
-        lower, upper = host(model.lower), host(model.upper)
-        return _Columns(model, links, position_links, shapes, drawn, rr.TimeColumn("time", duration=host(trajectory.time)),
-                        position.numpy(), quaternion_xyzw(rotation).numpy(), bones, host(trajectory.joint_positions),
-                        host(trajectory.diagnostics["residual_norm"]), np.isfinite(lower) & np.isfinite(upper) &
-                        (upper - lower < NO_LIMIT), lower, upper, per_subject)
-
-
-def _log_subject(rec: rr.RecordingStream, columns: _Columns, i: int, targets: TargetSequence | None,
-                 target_time: torch.Tensor, axis_length: float) -> None:
-    """Subject i's entity tree: link poses and visuals, skeleton, targets, diagnostics, residuals, joints."""
-    c, root, color = columns, f"/subject/{i}", PALETTE[i % len(PALETTE)]
-    T, time = len(c.joint_positions), c.time
-    for k, link in enumerate(c.drawn):
-        name = f"{root}/estimate/{rr.escape_entity_path_part(link)}"
-        if k < len(c.links):
-            rec.log(name, rr.TransformAxes3D(axis_length), static=True)
-        log_visuals(rec, f"{name}/visual", c.shapes.get(link, ()), color)
-        rec.send_columns(name, [time], rr.Transform3D.columns(
-            translation=c.position[:, i, k], quaternion=c.quaternion[:, i, k]))
-    rec.log(f"{root}/skeleton", rr.LineStrips3D.from_fields(radii=[0.01], colors=[color]), static=True)
-    rec.send_columns(f"{root}/skeleton", [time], rr.LineStrips3D.columns(
-        strips=c.bones[:, i].reshape(-1, 2, 3)).partition(np.full(T, c.bones.shape[2])))
-    if targets is not None:
-        _log_targets(rec, f"{root}/target", target_time, targets, i, c.links, c.position_links,
-                     c.position[:, i, :len(c.links)], 1.5 * axis_length)
-    for name, values in c.per_subject.items():
-        _send_scalars(rec, f"{root}/{GROUPS.get(name, 'diagnostics')}/{name}", time, values[:, i])
-    for j, link in enumerate(c.position_links + c.links):
-        kind = "position" if j < len(c.position_links) else "orientation"
-        _send_scalars(rec, f"{root}/residual/{kind}/{rr.escape_entity_path_part(link)}", time, c.residual[:, i, j])
-    for j, joint in enumerate(c.model.joint_names):
-        values, names = c.joint_positions[:, i, j], None
-        if c.limited[j]:
-            values = np.stack((values, np.full(T, c.lower[j]), np.full(T, c.upper[j])), axis=1)
-            names = ["angle", "lower limit", "upper limit"]
-        _send_scalars(rec, f"{root}/joints/{rr.escape_entity_path_part(joint)}", time, values, names)
+        return _Columns(rr.TimeColumn("time", duration=host(trajectory.time)), position.numpy(),
+                        quaternion_xyzw(rotation).numpy(), bones, host(trajectory.joint_positions),
+                        host(trajectory.diagnostics["residual_norm"]), per_subject)
 
 
 def blueprint(subjects: Sequence[int], aggregate: bool = False) -> rrb.Blueprint:
@@ -278,8 +334,7 @@ def _split_diagnostics(diagnostics: dict[str, torch.Tensor], T: int, B: int, n_t
 
 
 def _log_targets(rec: rr.RecordingStream, root: str, time: torch.Tensor, targets: TargetSequence, i: int,
-                 links: tuple[str, ...], position_links: tuple[str, ...], estimate: np.ndarray,
-                 axis_length: float) -> None:
+                 links: tuple[str, ...], position_links: tuple[str, ...], estimate: np.ndarray) -> None:
     """Subject i's measured frames [T] at root/<link> (estimate: the estimated link origins
     [T,L,3], where a target without a position is drawn); steps with a non-finite target are left
     out of that link's column."""
@@ -295,7 +350,6 @@ def _log_targets(rec: rr.RecordingStream, root: str, time: torch.Tensor, targets
     for k, link in enumerate(links):
         name = f"{root}/{rr.escape_entity_path_part(link)}"
         keep = known[:, k]
-        rec.log(name, rr.TransformAxes3D(axis_length), static=True)
         rec.send_columns(name, [rr.TimeColumn("time", duration=seconds[keep])], rr.Transform3D.columns(
             translation=at[keep, k], quaternion=quaternion[keep, k]))
 
