@@ -7,8 +7,8 @@ from .files import replacing, write_json
 from .formats import READERS, open_recording, read
 from .maps import LinkMap, apply_map, calibrate, load_map, map_recording
 from .mvnx import read_mvnx
-from .recording import Recording, RecordingError, angular_velocity_from_orientations, load_recording, save_recording
-from .recording_file import RecordingFile
+from .recording import Recording, RecordingError, angular_velocity_from_orientations, save_recording
+from .recording_file import RecordingFile, load_recording
 from .targets import recording_targets
 from .trajectory import TrajectoryWriter, save_trajectory
 

@@ -7,8 +7,8 @@ from pathlib import Path
 from .bvh import read_bvh
 from .c3d import read_c3d
 from .mvnx import read_mvnx
-from .recording import Recording, RecordingError, load_recording, readable_file
-from .recording_file import RecordingFile
+from .recording import Recording, RecordingError, readable_file
+from .recording_file import RecordingFile, load_recording
 
 READERS = {".npz": load_recording, ".mvnx": read_mvnx, ".bvh": read_bvh, ".c3d": read_c3d}
 

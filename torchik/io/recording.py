@@ -16,6 +16,9 @@ One `.npz` file (NumPy, no pickles):
 | `position` | float64 [T,n,3] | optional: each segment's origin (its proximal joint), m, world; NaN where missing |
 | `meta` | str | JSON: source file, subject, units, frame rate, calibration frames, ... |
 
+`save_recording` writes it; `load_recording` (recording_file.py) reads it whole, `RecordingFile` a
+chunk of frames at a time.
+
 A frame that a source could not measure (an occluded marker, a dropped packet) holds NaN for the
 segments concerned: marked, never filled with made-up values.
 """
@@ -211,14 +214,6 @@ def readable_file(path: str | Path) -> Path:
     if not path.is_file():
         raise RecordingError(f"{path}: no such file" if not path.exists() else f"{path}: not a regular file")
     return path
-
-
-def load_recording(path: str | Path) -> Recording:
-    """Read and validate a recording; RecordingError naming the file and the problem. (Read as one
-    chunk of a RecordingFile: a long one can be read a chunk at a time instead.)"""
-    from .recording_file import RecordingFile
-
-    return RecordingFile(path).read()
 
 
 def angular_velocity_from_orientations(orientation: np.ndarray, time: np.ndarray) -> np.ndarray:

@@ -26,6 +26,12 @@ PER_FRAME = ("orientation", "angular_velocity", "base_position", "base_linear_ve
 BLOCK = 16 << 20  # bytes per read from a member: a chunk's copy is made a block at a time
 
 
+def load_recording(path: str | Path) -> Recording:
+    """Read and validate a recording; RecordingError naming the file and the problem. (The reader of
+    `RecordingFile` in one chunk: a long recording can be read a chunk at a time instead.)"""
+    return RecordingFile(path).read()
+
+
 class RecordingFile:
     """A torchik recording file, opened: time [T], links, base_link, joint_names, meta and frames
     (T) as a Recording has them, and `chunks(size)`. Raises RecordingError naming the file for

@@ -5,18 +5,32 @@ done, the same samples as a run over the whole sequence."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Generator, Iterable
+from typing import Generator, Iterable, Protocol
 
 import torch
 
 from ..errors import InputError
-from .state import State, TargetSequence, Trajectory, TrajectoryBuffer
+from .kinematics import KinematicModel
+from .state import State, StepDiagnostics, TargetSequence, Trajectory, TrajectoryBuffer
+from .targets import Targets
 
-if TYPE_CHECKING:
-    from .tracker import DynamicalIK
+
+class Tracker(Protocol):
+    """What a run needs of the tracker (`DynamicalIK`)."""
+
+    model: KinematicModel
+
+    @property
+    def dt(self) -> float: ...
+
+    def reset(self, state: State | None = None, batch: int = 1) -> State: ...
+
+    def initial_state(self, targets: Targets) -> State: ...
+
+    def step(self, targets: Targets, dt: float | torch.Tensor | None = None) -> tuple[State, StepDiagnostics]: ...
 
 
-def run_parts(tracker: DynamicalIK, parts: Iterable[TargetSequence], time: torch.Tensor, initial: State | None = None,
+def run_parts(tracker: Tracker, parts: Iterable[TargetSequence], time: torch.Tensor, initial: State | None = None,
               progress: bool | None = None, interruptible: bool = False) -> Generator[Trajectory, None, None]:
     """Track the sequence whose time stamps are `time` [T], its targets given in consecutive `parts`
     (their lengths adding up to T), from `initial` (default: `initial_state` of the first targets).
@@ -71,7 +85,7 @@ def run_parts(tracker: DynamicalIK, parts: Iterable[TargetSequence], time: torch
             bar.close()
 
 
-def time_steps(tracker: DynamicalIK, time: torch.Tensor, B: int):
+def time_steps(tracker: Tracker, time: torch.Tensor, B: int):
     """Step k's dt, a function of k: None (the nominal dt, which the step uses without checks or
     tensor arithmetic) where the time stamps' gap is the nominal one to their rounding, else the
     gap [B] (made when asked: a tensor per step held for the whole run would weigh more than the
