@@ -129,20 +129,42 @@ def tracking_statistics(trajectory: Trajectory, sequence: TargetSequence, record
     no frame is known) and, when the recording carries the model's joint angles, joint_error_rad
     (max, rms). trajectory: [T,1,...] with the mnte and rmse diagnostics (`tracking_errors`);
     sequence: its targets (at least T frames)."""
-    statistics = TrackingStatistics(model, transient)
+    statistics = TrackingStatistics(model, transient, len(trajectory.time))
     statistics.add(trajectory, sequence, recording)
     return statistics.result()
 
 
-class TrackingStatistics:
-    """`tracking_statistics` of a run given a part at a time (`add` each, in order): the per-sample
-    metrics its summaries are taken of (two numbers a step), sums for the joint error."""
+class Series:
+    """Per-sample values of a run of at most `frames` samples, given a part at a time (`append`) into
+    one tensor allocated with the first: a long run keeps no small blocks between its parts' large
+    temporaries, which would keep the heap from shrinking."""
 
-    def __init__(self, model: KinematicModel, transient: float):
+    def __init__(self, frames: int):
+        self.frames, self.done = frames, 0
+        self.buffer: torch.Tensor | None = None
+
+    def append(self, values: torch.Tensor) -> None:
+        """values [t,...] for the next t samples."""
+        if self.buffer is None:
+            self.buffer = values.new_empty((self.frames, *values.shape[1:]))
+        self.buffer[self.done:self.done + len(values)] = values
+        self.done += len(values)
+
+    def values(self) -> torch.Tensor:
+        """[T,...]: the samples given."""
+        assert self.buffer is not None  # a part was given
+        return self.buffer[:self.done]
+
+
+class TrackingStatistics:
+    """`tracking_statistics` of a run of at most `frames` samples given a part at a time (`add` each,
+    in order): the per-sample metrics its summaries are taken of (two numbers a step), sums for the
+    joint error."""
+
+    def __init__(self, model: KinematicModel, transient: float, frames: int):
         self.model, self.transient = model, transient
-        self.time: list[torch.Tensor] = []
-        self.known: list[torch.Tensor] = []
-        self.metrics: dict[str, list[torch.Tensor]] = dict(mnte=[], rmse=[])
+        self.time, self.known = Series(frames), Series(frames)
+        self.metrics = dict(mnte=Series(frames), rmse=Series(frames))
         # joint error: max and sum of squares (and their count) after the transient, and over all samples
         # (what is reported when the run is shorter than the transient)
         self.joints: dict[str, list[float]] | None = None
@@ -150,11 +172,11 @@ class TrackingStatistics:
     def add(self, trajectory: Trajectory, sequence: TargetSequence, recording: Recording) -> None:
         """A part: trajectory [t,1,...] with mnte and rmse, its targets and recording from its first sample."""
         done, time, d = len(trajectory.time), trajectory.time, trajectory.diagnostics
-        start = float((self.time[0] if self.time else time)[0])
+        start = float((self.time.values() if self.time.done else time)[0])
         self.time.append(time)
         self.known.append(known_targets(sequence, done)[:, 0])  # [t]
-        for name, values in self.metrics.items():
-            values.append(d[name][:, 0])
+        for name, series in self.metrics.items():
+            series.append(d[name][:, 0])
         if recording.joint_positions is not None and recording.joint_names == self.model.joint_names:
             truth = torch.from_numpy(recording.joint_positions[:done]).to(trajectory.joint_positions)
             error = (trajectory.joint_positions[:, 0] - truth).abs()
@@ -166,10 +188,10 @@ class TrackingStatistics:
 
     def result(self) -> dict:
         """mnte, angular_velocity_rmse and (with ground truth) joint_error_rad, as `tracking_statistics`."""
-        time, known = torch.cat(self.time), torch.cat(self.known)
+        time, known = self.time.values(), self.known.values()
         any_known = bool(known.any())
-        out: dict = {name: summary(torch.cat(values)[known], time[known], self.transient) if any_known else None
-                     for name, values in zip(("mnte", "angular_velocity_rmse"), self.metrics.values())}
+        out: dict = {name: summary(series.values()[known], time[known], self.transient) if any_known else None
+                     for name, series in zip(("mnte", "angular_velocity_rmse"), self.metrics.values())}
         if self.joints is not None:
             peak, squares, count = self.joints["after" if self.joints["after"][2] else "all"]
             out["joint_error_rad"] = dict(max=peak, rms=math.sqrt(squares / count))

@@ -91,7 +91,7 @@ def track_chunks(model: KinematicModel, source: Source, links, settings: Tracker
     targets = lambda counted: target_chunks(_plausible(source.chunks(chunk), bounds, counted), links,  # noqa: E731
                                             position_links, dtype=model.dtype, device=model.device)
     implausible = _check_measured(targets, links, len(source.time))
-    summary = TrackSummary(model, links, position_links, transient)
+    summary = TrackSummary(model, links, position_links, transient, len(source.time))
     pending: deque[tuple[Recording, TargetSequence]] = deque()  # given to the tracker, their parts not yet back
 
     def parts() -> Iterator[TargetSequence]:

@@ -12,7 +12,7 @@ from ..io.recording import Recording
 from ..method.kinematics import KinematicModel
 from ..method.settings import TrackerSettings
 from ..method.state import TargetSequence, Trajectory
-from .evaluation import TrackingStatistics, position_errors, summary
+from .evaluation import Series, TrackingStatistics, position_errors, summary
 
 STATES = ("base_position", "base_rotation", "joint_positions", "velocity")
 COUNTS = ("qp_fallbacks", "dropped_targets", "projected_targets", "failed_steps")
@@ -22,15 +22,15 @@ class TrackSummary:
     """A tracked run's report and faults: `add` each part of the trajectory (with its mnte and rmse
     diagnostics, `tracking_errors`) with its targets and recording, in order; then `report` and
     `fault`. position_links: the links whose distance to their position targets is reported
-    (None: none)."""
+    (None: none); frames: the most samples the run can have (its recording's)."""
 
     def __init__(self, model: KinematicModel, links: tuple[str, ...], position_links: tuple[str, ...] | None,
-                 transient: float):
+                 transient: float, frames: int):
         self.model, self.links, self.position_links, self.transient = model, links, position_links, transient
-        self.statistics = TrackingStatistics(model, transient)
-        self.step_time: list[torch.Tensor] = []
-        self.new_segment: list[torch.Tensor] = []  # subject 0's, [t] bool each
-        self.position_error: list[torch.Tensor] = []  # subject 0's, [t,P] each
+        self.statistics = TrackingStatistics(model, transient, frames)
+        self.step_time = Series(frames)
+        self.new_segment = Series(frames)  # subject 0's [T] bool
+        self.position_error = Series(frames)  # subject 0's [T,P]
         self.counts = dict.fromkeys(COUNTS, 0)
         self.active = [0.0, 0]  # sum and number of the active constraints' counts
         self.failed: torch.Tensor | None = None  # [B] steps failed per subject
@@ -39,7 +39,7 @@ class TrackSummary:
 
     @property
     def frames(self) -> int:
-        return sum(len(t) for t in self.statistics.time)
+        return self.statistics.time.done
 
     def add(self, trajectory: Trajectory, sequence: TargetSequence, recording: Recording) -> None:
         """A part of the run: trajectory [t,B,...] and the targets and recording from its first sample."""
@@ -64,7 +64,7 @@ class TrackSummary:
     def report(self, settings: TrackerSettings, implausible: int, interrupted: bool) -> dict:
         """The report `torchik track` writes (settings: those tracked with, dt the nominal step;
         implausible: the samples dropped as implausible)."""
-        time = torch.cat(self.statistics.time)
+        time = self.statistics.time.values()
         assert self.failed is not None  # a part was added
         report = dict(
             model=self.model.name, links=len(self.links), frames=len(time), duration_s=float(time[-1] - time[0]),
@@ -72,15 +72,15 @@ class TrackSummary:
             gains=dict(position=settings.position_gain, orientation=settings.orientation_gain),
             transient_s=self.transient,
             **self.statistics.result(),
-            step_time_ms={k: v * 1e3 for k, v in summary(torch.cat(self.step_time), time, 0.0).items()},
+            step_time_ms={k: v * 1e3 for k, v in summary(self.step_time.values(), time, 0.0).items()},
             qp_fallbacks=self.counts["qp_fallbacks"], dropped_targets=self.counts["dropped_targets"],
             projected_targets=self.counts["projected_targets"], implausible_samples=implausible,
             failed_steps=self.counts["failed_steps"], failed_subjects=self.failed.nonzero()[:, 0].tolist(),
-            segments=segments(time, torch.cat(self.new_segment)),
+            segments=segments(time, self.new_segment.values()),
             active_constraints_mean=self.active[0] / self.active[1], interrupted=interrupted,
         )
         if self.position_links is not None:
-            error = torch.cat(self.position_error)  # [T,P]
+            error = self.position_error.values()  # [T,P]
             report["position_error_m"] = {link: summary(e[torch.isfinite(e)], time[torch.isfinite(e)], self.transient)
                                           for link, e in zip(self.position_links, error.unbind(-1))
                                           if bool(torch.isfinite(e).any())}
