@@ -3,7 +3,7 @@
 A recording is tracked a chunk of frames at a time (`track_chunks`): read (from a RecordingFile
 or a Recording in memory), implausible samples dropped, made targets, tracked with the state
 carried over, measured, and handed to the outputs (the report's figures, the trajectory file, the
-rerun recording) before the next chunk is read. Memory is a few chunks', whatever the length; the
+rerun recording) as the next chunks are read. Memory is a few chunks', whatever the length; the
 trajectory, the report and the outputs are those of tracking the whole recording at once.
 """
 
@@ -28,7 +28,9 @@ from .evaluation import tracking_errors
 from .interrupts import deferred_interrupts
 from .track_summary import TrackSummary
 
-CHUNK = 4096  # frames read, tracked and written at a time: 41 s at 100 Hz, a few tens of MB for Human66
+# frames read, tracked and written at a time: 41 s at 100 Hz, a few tens of MB for Human66; as many as
+# the metrics' kinematics take per call (evaluation.py), so that they too are those of a run in one piece
+CHUNK = 4096
 
 
 class Source(Protocol):
@@ -59,8 +61,8 @@ def track_recording(model: KinematicModel, recording: Recording, links, settings
     trajectory and report then cover the frames done and report["interrupted"] is True.
     position_links: the links with position targets (default the base; others need the recording's
     `position`); with any, the report's position_error_m gives their distance to the estimate."""
-    collected = Collected()
-    settings = dataclasses.replace(settings or TrackerSettings(), dt=nominal_dt(recording, settings or TrackerSettings()))
+    collected, settings = Collected(), settings or TrackerSettings()
+    settings = dataclasses.replace(settings, dt=nominal_dt(recording, settings))
     summary, implausible, interrupted = track_chunks(model, recording, links, settings, [collected], progress=progress,
                                                      transient=transient, position_links=position_links,
                                                      plausibility=plausibility)
