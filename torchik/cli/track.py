@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import argparse
 import builtins
+import contextlib
+import dataclasses
 import functools
 import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from ..errors import InputError
 from ..io.plausible import Plausibility
@@ -108,7 +111,7 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from ..pipelines.track import nominal_dt, output_fault, track_recording
+    from ..pipelines.track import nominal_dt, track_chunks
 
     if args.rrd and Path(args.rrd).suffix != ".rrd":
         raise InputError(f"{args.rrd}: a rerun recording's name must end in .rrd (e.g. walk.rrd)")
@@ -127,34 +130,57 @@ def run(args: argparse.Namespace) -> int:
     settings = TrackerSettings(position_gain=args.gain if args.position_gain is None else args.position_gain,
                                orientation_gain=args.gain if args.orientation_gain is None else args.orientation_gain,
                                scheme=args.scheme, backend=args.backend, max_gap=args.max_gap, compile=args.compile)
-    _check_stability(settings, nominal_dt(recording, settings))
+    settings = dataclasses.replace(settings, dt=nominal_dt(recording, settings))
+    _check_stability(settings, settings.dt)
     start = time.perf_counter()
     position_links = None
     if args.position_targets:
         position_links = (model.base_link, *[name for name in args.position_targets if name != model.base_link])
     bounds = Plausibility(max_angular_velocity=args.max_angular_velocity, max_linear_velocity=args.max_linear_velocity)
-    trajectory, report = track_recording(model, recording, links, settings, progress=not args.quiet,
-                                         position_links=position_links, plausibility=bounds)
-    report.update(source=source, device=str(device), wall_time_s=time.perf_counter() - start)
-    if not args.quiet:  # beside a report on standard output, on standard error
-        _print_report(report, source, model.name or Path(model.source).stem,
-                      sys.stderr if args.report == "-" else sys.stdout)
-    fault = output_fault(trajectory, report, args.max_failed)
-    if fault:
-        print(f"torchik track: {fault}", file=sys.stderr)
-        return 1
-    _write_outputs(args, report, trajectory, model, subject, recording, links, position_links)
-    if report["interrupted"]:
+    with _outputs(args, model, subject, links, position_links) as outputs:  # written as the run goes
+        summary, implausible, interrupted = track_chunks(model, recording, links, settings, outputs.values(),
+                                                         progress=not args.quiet, position_links=position_links,
+                                                         plausibility=bounds)
+        report = summary.report(settings, implausible, interrupted)
+        report.update(source=source, device=str(device), wall_time_s=time.perf_counter() - start)
+        if not args.quiet:  # beside a report on standard output, on standard error
+            _print_report(report, source, model.name or Path(model.source).stem,
+                          sys.stderr if args.report == "-" else sys.stdout)
+        fault = summary.fault(report, args.max_failed)
+        if fault:  # the outputs are left uncommitted: nothing is written
+            print(f"torchik track: {fault}", file=sys.stderr)
+            return 1
+        _write_outputs(args, report, outputs)
+    if interrupted:
         how = "terminated" if Terminated.received else "interrupted"
         print(f"torchik track: {how}; the outputs hold the {report['frames']} frames tracked", file=sys.stderr)
         return 143 if Terminated.received else 130
     return 0
 
 
+@contextlib.contextmanager
+def _outputs(args: argparse.Namespace, model, subject, links, position_links):
+    """The writers of --out and --rrd, by option name: each part of the run goes to them as it is
+    tracked; their files appear when committed (`_write_outputs`), and none if the run fails."""
+    from ..io import TrajectoryWriter
+
+    with contextlib.ExitStack() as stack:
+        writers: dict[str, Any] = {}
+        if args.out:
+            writers["out"] = stack.enter_context(TrajectoryWriter(args.out, model))
+        if args.rrd:
+            from ..pipelines.rrd import RrdWriter
+
+            writers["rrd"] = stack.enter_context(RrdWriter(args.rrd, model, links, position_links=position_links,
+                                                           urdf=args.urdf or model_urdf(args.model, subject)))
+        yield writers
+
+
 def _load(args: argparse.Namespace, device):
     """The model (with the subject built from --subject-from, if given), the recording in its links
-    (read and mapped, or a scenario), the tracked links and a phrase naming the source."""
-    from ..io import map_recording, read
+    (a .npz file read as its frames are needed; another format, or one mapped or calibrated, read
+    whole; or a scenario), the tracked links and a phrase naming the source."""
+    from ..io import map_recording, open_recording, read
     from ..io.maps import default_map
     from ..method.models import TRACKED_LINKS, load_model
     from ..synthetic.scenarios import scenario
@@ -170,12 +196,12 @@ def _load(args: argparse.Namespace, device):
         model = load_model(args.model, subject, device=device)
     links = TRACKED_LINKS[args.model]
     if args.input:
-        recording = read(args.input)
+        recording = open_recording(args.input)
         source = args.input
         map_name = args.map or default_map(recording.links, model)
         if map_name:
             static = read(args.calibration) if args.calibration else None
-            recording, link_map = map_recording(recording, map_name, model, static, args.calibration_frame)
+            recording, link_map = map_recording(_whole(recording), map_name, model, static, args.calibration_frame)
             links = recording.links
             source += f" through map {link_map.name!r}"
     elif args.map or args.calibration:
@@ -187,15 +213,22 @@ def _load(args: argparse.Namespace, device):
     if args.sensor_calibration:  # the sensor effects a diagnosis found, undone
         from ..pipelines.diagnosis.calibration import apply_calibration_file
 
-        recording = apply_calibration_file(recording, args.sensor_calibration)
+        recording = apply_calibration_file(_whole(recording), args.sensor_calibration)
         source += f" with sensor calibration {args.sensor_calibration}"
     return model, subject, recording, links, source
 
 
-def _write_outputs(args: argparse.Namespace, report: dict, trajectory, model, subject, recording, links,
-                   position_links) -> None:
-    """The report (a file, or - for standard output), the trajectory (--out) and the rerun recording (--rrd)."""
-    from ..io import recording_targets, save_trajectory, write_json
+def _whole(recording):
+    """A recording in memory, from a file's if need be (to map it or undo its sensor effects)."""
+    from ..io import Recording
+
+    return recording if isinstance(recording, Recording) else recording.read()
+
+
+def _write_outputs(args: argparse.Namespace, report: dict, outputs: dict) -> None:
+    """The report (a file, or - for standard output), then the trajectory (--out) and the rerun
+    recording (--rrd) committed."""
+    from ..io import write_json
 
     if args.report == "-":
         print(json.dumps(report, indent=2))
@@ -203,20 +236,10 @@ def _write_outputs(args: argparse.Namespace, report: dict, trajectory, model, su
         write_json(report, args.report)
         if not args.quiet:
             print(f"wrote {args.report}")
-    if args.out:
-        save_trajectory(trajectory, model, args.out)
+    for name, writer in outputs.items():
+        path = writer.commit()
         if not args.quiet:
-            print(f"wrote {args.out}")
-    if args.rrd:
-        from ..pipelines.rrd import log_trajectory
-
-        start = time.perf_counter()
-        targets = recording_targets(recording, links, position_links, dtype=model.dtype, device=model.device)
-        log_trajectory(args.rrd, model, links, trajectory, targets, position_links=position_links,
-                       urdf=args.urdf or model_urdf(args.model, subject),
-                       progress=not args.quiet)
-        if not args.quiet:
-            print(f"wrote {args.rrd} in {time.perf_counter() - start:.1f} s; open it with: rerun {args.rrd}")
+            print(f"wrote {path}" + (f"; open it with: rerun {path}" if name == "rrd" else ""))
 
 
 def _check_stability(settings: TrackerSettings, dt: float) -> None:

@@ -9,18 +9,36 @@ from contextlib import contextmanager
 from pathlib import Path
 
 
+class PartFile:
+    """An output written at a hidden path beside `path` (`part`), which `commit` moves onto `path`;
+    `discard` (and leaving the `with` block uncommitted) removes it. A write interrupted (Ctrl-C) or
+    failed leaves the old file or none, never a truncated one."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        _remove_orphans(self.path)
+        self.part = self.path.with_name(f".{self.path.name}.{os.getpid()}.part")
+
+    def commit(self) -> Path:
+        os.replace(self.part, self.path)
+        return self.path
+
+    def discard(self) -> None:
+        self.part.unlink(missing_ok=True)
+
+    def __enter__(self) -> "PartFile":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.discard()
+
+
 @contextmanager
 def replacing(path: str | Path):
-    """Write to the temporary path this yields; it replaces `path` when the block completes. A write
-    interrupted (Ctrl-C) or failed leaves the old file or none, never a truncated one."""
-    path = Path(path)
-    _remove_orphans(path)
-    part = path.with_name(f".{path.name}.{os.getpid()}.part")
-    try:
-        yield part
-        os.replace(part, path)
-    finally:
-        part.unlink(missing_ok=True)
+    """Write to the temporary path this yields; it replaces `path` when the block completes (PartFile)."""
+    with PartFile(path) as out:
+        yield out.part
+        out.commit()
 
 
 def _remove_orphans(path: Path) -> None:

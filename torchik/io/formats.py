@@ -7,7 +7,8 @@ from pathlib import Path
 from .bvh import read_bvh
 from .c3d import read_c3d
 from .mvnx import read_mvnx
-from .recording import Recording, RecordingError, load_recording, readable_file
+from .recording import Recording, RecordingError, readable_file
+from .recording_file import RecordingFile, load_recording
 
 READERS = {".npz": load_recording, ".mvnx": read_mvnx, ".bvh": read_bvh, ".c3d": read_c3d}
 
@@ -20,3 +21,12 @@ def read(path: str | Path) -> Recording:
     if suffix not in READERS:
         raise RecordingError(f"{path}: unsupported format {suffix!r}; supported: {', '.join(READERS)}")
     return READERS[suffix](path)
+
+
+def open_recording(path: str | Path) -> Recording | RecordingFile:
+    """A recording to track a chunk at a time: a RecordingFile for a torchik recording (.npz, read as
+    its frames are needed; an hour of one does not fit in memory at once), else the Recording the
+    file's reader gives (the other formats are read whole)."""
+    if Path(path).suffix.lower() == ".npz" and not Path(path).is_dir():
+        return RecordingFile(path)
+    return read(path)

@@ -28,39 +28,57 @@ class Plausibility:
 def drop_implausible(recording: Recording, bounds: Plausibility) -> tuple[Recording, int]:
     """`recording` with the samples beyond `bounds` made missing (NaN), and how many were: a link's
     orientation and angular velocity at a frame, or the base's position and linear velocity."""
-    w, v = recording.angular_velocity, recording.base_linear_velocity
-    with np.errstate(over="ignore", invalid="ignore"):  # NaN (missing) compares False; an overflow to inf is beyond
-        spinning = np.linalg.norm(w / bounds.max_angular_velocity, axis=-1) > 1.0  # [T,n]
-        speeding = np.linalg.norm(v / bounds.max_linear_velocity, axis=-1) > 1.0  # [T]
-    jumping = _jumps(recording.time, recording.base_position, bounds)
-    base = speeding | jumping
-    count = int(spinning.sum() + base.sum())
-    if not count:
-        return recording, 0
-    orientation, w = recording.orientation.copy(), w.copy()
-    orientation[spinning], w[spinning] = np.nan, np.nan
-    position, v = recording.base_position.copy(), v.copy()
-    position[base], v[base] = np.nan, np.nan
-    return dataclasses.replace(recording, orientation=orientation, angular_velocity=w, base_position=position,
-                               base_linear_velocity=v), count
+    return ImplausibleFilter(bounds)(recording)
 
 
-def _jumps(time: np.ndarray, position: np.ndarray, bounds: Plausibility) -> np.ndarray:
-    """[T] bool: base positions farther from the last accepted one than the speed bound allows."""
-    known = np.isfinite(position).all(-1)
-    k = np.flatnonzero(known)
+class ImplausibleFilter:
+    """`drop_implausible` for a recording given a chunk at a time, in order: call it on each chunk.
+    The base's jumps are measured from the last position accepted, which may be in an earlier chunk."""
+
+    def __init__(self, bounds: Plausibility):
+        self.bounds = bounds
+        self._last: tuple[float, np.ndarray] | None = None  # time and base position last accepted
+
+    def __call__(self, recording: Recording) -> tuple[Recording, int]:
+        bounds = self.bounds
+        w, v = recording.angular_velocity, recording.base_linear_velocity
+        with np.errstate(over="ignore", invalid="ignore"):  # NaN (missing) compares False; an overflow to inf is beyond
+            spinning = np.linalg.norm(w / bounds.max_angular_velocity, axis=-1) > 1.0  # [T,n]
+            speeding = np.linalg.norm(v / bounds.max_linear_velocity, axis=-1) > 1.0  # [T]
+        jumping, self._last = _jumps(recording.time, recording.base_position, bounds, self._last)
+        base = speeding | jumping
+        count = int(spinning.sum() + base.sum())
+        if not count:
+            return recording, 0
+        orientation, w = recording.orientation.copy(), w.copy()
+        orientation[spinning], w[spinning] = np.nan, np.nan
+        position, v = recording.base_position.copy(), v.copy()
+        position[base], v[base] = np.nan, np.nan
+        return dataclasses.replace(recording, orientation=orientation, angular_velocity=w, base_position=position,
+                                   base_linear_velocity=v), count
+
+
+def _jumps(time: np.ndarray, position: np.ndarray, bounds: Plausibility,
+           last: tuple[float, np.ndarray] | None) -> tuple[np.ndarray, tuple[float, np.ndarray] | None]:
+    """[T] bool: base positions farther from the last accepted one (`last`, from an earlier chunk,
+    or else the first known here) than the speed bound allows; and the last accepted one after them."""
+    known = np.flatnonzero(np.isfinite(position).all(-1))
+    jumping = np.zeros(len(time), dtype=bool)
+    if not len(known):
+        return jumping, last
+    t = np.concatenate(([last[0]], time[known])) if last else time[known]
+    p = np.concatenate((last[1][None], position[known])) if last else position[known]
     with np.errstate(over="ignore", invalid="ignore"):
-        step = np.linalg.norm(np.diff(position[k], axis=0), axis=-1)
-        allowed = bounds.max_linear_velocity * np.diff(time[k]) + bounds.position_noise
+        step = np.linalg.norm(np.diff(p, axis=0), axis=-1)
+        allowed = bounds.max_linear_velocity * np.diff(t) + bounds.position_noise
         if not (step > allowed).any():
-            return np.zeros(len(time), dtype=bool)  # the usual case, without the loop below
+            return jumping, (float(t[-1]), p[-1])  # the usual case, without the loop below
         # a jump away and the jump back: compare each with the last position accepted, not the previous
-        jumping = np.zeros(len(time), dtype=bool)
-        last = k[0] if len(k) else 0
-        for t in k[1:]:
-            if np.linalg.norm(position[t] - position[last]) > bounds.max_linear_velocity * (time[t] - time[last]) + \
+        accepted = 0
+        for k in range(1, len(t)):
+            if np.linalg.norm(p[k] - p[accepted]) > bounds.max_linear_velocity * (t[k] - t[accepted]) + \
                     bounds.position_noise:
-                jumping[t] = True
+                jumping[known[k - (len(t) - len(known))]] = True
             else:
-                last = t
-    return jumping
+                accepted = k
+    return jumping, (float(t[accepted]), p[accepted])

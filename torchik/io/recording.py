@@ -16,17 +16,20 @@ One `.npz` file (NumPy, no pickles):
 | `position` | float64 [T,n,3] | optional: each segment's origin (its proximal joint), m, world; NaN where missing |
 | `meta` | str | JSON: source file, subject, units, frame rate, calibration frames, ... |
 
+`save_recording` writes it; `load_recording` (recording_file.py) reads it whole, `RecordingFile` a
+chunk of frames at a time.
+
 A frame that a source could not measure (an occluded marker, a dropped packet) holds NaN for the
 segments concerned: marked, never filled with made-up values.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 import torch
@@ -55,6 +58,7 @@ class Recording:
     joint_positions: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
     position: np.ndarray | None = None  # [T,n,3] each segment's origin, m, world (position targets off the base)
+    first_frame: int = 0  # of a chunk read from a longer recording: where it starts (what messages count from)
 
     def __post_init__(self):
         self.links = tuple(self.links)
@@ -71,6 +75,27 @@ class Recording:
     def duration(self) -> float:
         return float(self.time[-1] - self.time[0]) if len(self.time) else 0.0
 
+    def chunks(self, size: int) -> Iterator["Recording"]:
+        """The recording `size` frames at a time (itself when it has no more), as RecordingFile.chunks
+        gives a file's."""
+        if size < 1:
+            raise ValueError(f"chunk size must be positive, got {size}")
+        if len(self.time) <= size:
+            yield self
+            return
+        for start in range(0, len(self.time), size):
+            yield self.part(start, start + size)
+
+    def part(self, start: int, stop: int) -> "Recording":
+        """Frames [start, stop) (views), with first_frame saying where they start."""
+        cut = lambda a: None if a is None else a[start:stop]  # noqa: E731
+        return dataclasses.replace(self, time=self.time[start:stop], orientation=self.orientation[start:stop],
+                                   angular_velocity=self.angular_velocity[start:stop],
+                                   base_position=self.base_position[start:stop],
+                                   base_linear_velocity=self.base_linear_velocity[start:stop],
+                                   joint_positions=cut(self.joint_positions), position=cut(self.position),
+                                   first_frame=self.first_frame + start)
+
     def gaps(self) -> dict[str, int]:
         """Frames with missing (NaN) orientation, per segment that has any."""
         missing = np.isnan(self.orientation).any(axis=(-1, -2)).sum(axis=0)
@@ -79,36 +104,75 @@ class Recording:
 
 def validate(rec: Recording, where: str = "recording") -> None:
     """Shapes, dtypes, time and rotations; RecordingError naming the first problem found."""
+    check_layout(rec.time, rec.links, rec.base_link, per_frame_arrays(rec), rec.joint_names, rec.meta, where,
+                 rec.first_frame)
+    check_frames(rec.orientation, rec.angular_velocity, rec.links, where, rec.first_frame)
+
+
+def per_frame_arrays(rec: Recording) -> dict[str, Any]:
+    """The recording's arrays with a leading frame axis, by their names in the file (the optional ones when given)."""
+    arrays: dict[str, Any] = dict(orientation=rec.orientation, angular_velocity=rec.angular_velocity,
+                                  base_position=rec.base_position, base_linear_velocity=rec.base_linear_velocity)
+    if rec.joint_positions is not None:
+        arrays["joint_positions"] = rec.joint_positions
+    if rec.position is not None:
+        arrays["position"] = rec.position
+    return arrays
+
+
+def check_layout(time: Any, links: tuple[str, ...], base_link: str, arrays: dict[str, Any],
+                 joint_names: tuple[str, ...] | None, meta: dict, where: str = "recording", first_frame: int = 0) -> None:
+    """What is not checked frame by frame: the time stamps, the names, and the dtypes and shapes of
+    `arrays` (per_frame_arrays', or a file's array headers as shaped views: nothing is read for them).
+    Frame numbers in messages count from `first_frame`."""
     def fail(message: str):
         raise RecordingError(f"{where}: {message}")
 
-    arrays: dict[str, Any] = dict(time=rec.time, orientation=rec.orientation, angular_velocity=rec.angular_velocity,
-                  base_position=rec.base_position, base_linear_velocity=rec.base_linear_velocity)
-    for name, a in arrays.items():
+    for name, a in dict(time=time, **{k: v for k, v in arrays.items() if k in REQUIRED}).items():
         if not isinstance(a, np.ndarray) or a.dtype != np.float64:
             fail(f"{name} must be a float64 NumPy array, got {getattr(a, 'dtype', type(a).__name__)}")
-    T, n = rec.time.shape[0] if rec.time.ndim == 1 else -1, len(rec.links)
+    T, n = time.shape[0] if time.ndim == 1 else -1, len(links)
     expected = dict(time=(T,), orientation=(T, n, 3, 3), angular_velocity=(T, n, 3), base_position=(T, 3),
                     base_linear_velocity=(T, 3))
     for name, shape in expected.items():
-        if arrays[name].shape != shape:
-            fail(f"{name} has shape {list(arrays[name].shape)}, expected {list(shape)} (T={T} frames, n={n} links)")
+        found = time if name == "time" else arrays[name]
+        if found.shape != shape:
+            fail(f"{name} has shape {list(found.shape)}, expected {list(shape)} (T={T} frames, n={n} links)")
     if T < 1:
         fail("no frames")
-    if not np.all(np.isfinite(rec.time)):
+    if not np.all(np.isfinite(time)):
         fail("time holds NaN or Inf")
-    steps = np.diff(rec.time)
+    steps = np.diff(time)
     if np.any(steps <= 0):
         k = int(np.argmax(steps <= 0)) + 1
-        fail(f"time must be strictly increasing: frame {k} at {float(rec.time[k])} s follows {float(rec.time[k - 1])} s")
-    if len(set(rec.links)) != n:
-        fail(f"duplicate link names in {list(rec.links)}")
-    if rec.base_link not in rec.links:
-        fail(f"base_link {rec.base_link!r} is not one of the links {list(rec.links)}")
-    R = rec.orientation
+        fail(f"time must be strictly increasing: frame {first_frame + k} at {float(time[k])} s follows "
+             f"{float(time[k - 1])} s")
+    if len(set(links)) != n:
+        fail(f"duplicate link names in {list(links)}")
+    if base_link not in links:
+        fail(f"base_link {base_link!r} is not one of the links {list(links)}")
+    if (joint_names is None) != ("joint_positions" not in arrays):
+        fail("joint_names and joint_positions come together")
+    if joint_names is not None and "joint_positions" in arrays:
+        q = arrays["joint_positions"]
+        if q.dtype != np.float64 or q.shape != (T, len(joint_names)):
+            fail(f"joint_positions must be float64 [{T},{len(joint_names)}], got {q.dtype} {list(q.shape)}")
+    position = arrays.get("position")
+    if position is not None and (position.dtype != np.float64 or position.shape != (T, n, 3)):
+        fail(f"position must be float64 [{T},{n},3], got {position.dtype} {list(position.shape)}")
+    try:
+        json.dumps(meta)
+    except TypeError as exc:
+        fail(f"meta must be JSON-serialisable: {exc}")
+
+
+def check_frames(R: np.ndarray, angular_velocity: np.ndarray, links: tuple[str, ...], where: str = "recording",
+                 first_frame: int = 0) -> None:
+    """No Inf, and every known orientation R [T,n,3,3] a rotation to the tracker's projection
+    tolerance; frame numbers in messages count from `first_frame`."""
     known = ~np.isnan(R).any(axis=(-1, -2))
-    if np.isinf(R).any() or np.isinf(rec.angular_velocity).any():
-        fail("orientation or angular_velocity holds Inf (use NaN to mark missing data)")
+    if np.isinf(R).any() or np.isinf(angular_velocity).any():
+        raise RecordingError(f"{where}: orientation or angular_velocity holds Inf (use NaN to mark missing data)")
     if known.any():
         # the tracker projects rotations this close to SO(3) (noise, float32 exports) and counts them
         Rk = R[known]
@@ -117,21 +181,10 @@ def validate(rec: Recording, where: str = "recording") -> None:
             det = np.linalg.det(Rk)
         bad = (error > PROJECT_TOLERANCE) | (det < 0)
         if bad.any():
-            t, i = np.argwhere(known)[int(np.argmax(bad))]
-            fail(f"orientation of {rec.links[i]!r} at frame {t} is not a rotation (||R^T R - I|| = "
-                 f"{error[int(np.argmax(bad))]:.2g}, det = {det[int(np.argmax(bad))]:.3g})")
-    if (rec.joint_names is None) != (rec.joint_positions is None):
-        fail("joint_names and joint_positions come together")
-    if rec.joint_positions is not None and rec.joint_names is not None:
-        if rec.joint_positions.dtype != np.float64 or rec.joint_positions.shape != (T, len(rec.joint_names)):
-            fail(f"joint_positions must be float64 [{T},{len(rec.joint_names)}], got "
-                 f"{rec.joint_positions.dtype} {list(rec.joint_positions.shape)}")
-    if rec.position is not None and (rec.position.dtype != np.float64 or rec.position.shape != (T, n, 3)):
-        fail(f"position must be float64 [{T},{n},3], got {rec.position.dtype} {list(rec.position.shape)}")
-    try:
-        json.dumps(rec.meta)
-    except TypeError as exc:
-        fail(f"meta must be JSON-serialisable: {exc}")
+            first = int(np.argmax(bad))
+            t, i = np.argwhere(known)[first]
+            raise RecordingError(f"{where}: orientation of {links[i]!r} at frame {first_frame + t} is not a rotation "
+                                 f"(||R^T R - I|| = {error[first]:.2g}, det = {det[first]:.3g})")
 
 
 def save_recording(rec: Recording, path: str | Path) -> Path:
@@ -161,36 +214,6 @@ def readable_file(path: str | Path) -> Path:
     if not path.is_file():
         raise RecordingError(f"{path}: no such file" if not path.exists() else f"{path}: not a regular file")
     return path
-
-
-def load_recording(path: str | Path) -> Recording:
-    """Read and validate a recording; RecordingError naming the file and the problem."""
-    path = readable_file(path)
-    if not zipfile.is_zipfile(path):  # np.load takes any other bytes for a pickle, which it refuses
-        raise RecordingError(f"{path}: not a torchik recording (.npz, a zip archive of arrays); "
-                             "is it another format under the wrong suffix?")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            contents = {k: data[k] for k in data.files}
-    except Exception as exc:  # zip and format errors of every kind
-        raise RecordingError(f"{path}: not a torchik recording (.npz): {type(exc).__name__}: {exc}") from exc
-    missing = [k for k in REQUIRED if k not in contents]
-    if missing:
-        raise RecordingError(f"{path}: missing {missing}; a recording holds {list(REQUIRED)}")
-    try:
-        meta = json.loads(str(contents["meta"])) if "meta" in contents else {}
-    except json.JSONDecodeError as exc:
-        raise RecordingError(f"{path}: meta is not valid JSON: {exc}") from exc
-    try:
-        return Recording(
-            time=contents["time"], links=tuple(str(x) for x in contents["links"]),
-            orientation=contents["orientation"], angular_velocity=contents["angular_velocity"],
-            base_link=str(contents["base_link"]), base_position=contents["base_position"],
-            base_linear_velocity=contents["base_linear_velocity"],
-            joint_names=tuple(str(x) for x in contents["joint_names"]) if "joint_names" in contents else None,
-            joint_positions=contents.get("joint_positions"), meta=meta, position=contents.get("position"))
-    except RecordingError as exc:
-        raise RecordingError(f"{path}: {str(exc).removeprefix('recording: ')}") from None
 
 
 def angular_velocity_from_orientations(orientation: np.ndarray, time: np.ndarray) -> np.ndarray:

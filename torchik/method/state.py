@@ -77,6 +77,10 @@ class TargetSequence:
     def __getitem__(self, k: int) -> Targets:
         return Targets(self.position[k], self.linear_velocity[k], self.rotation[k], self.angular_velocity[k])
 
+    def part(self, start: int, stop: int) -> "TargetSequence":
+        """Samples [start, stop) (views)."""
+        return TargetSequence(*(x[start:stop] for x in vars(self).values()))
+
 
 @dataclass
 class Trajectory:
@@ -93,6 +97,22 @@ class Trajectory:
     velocity: torch.Tensor
     diagnostics: dict[str, torch.Tensor] = field(default_factory=dict)
     interrupted: bool = False
+
+    def part(self, start: int, stop: int) -> "Trajectory":
+        """Samples [start, stop) (views), the diagnostics with them."""
+        cut = slice(start, stop)
+        return Trajectory(self.time[cut], self.base_position[cut], self.base_rotation[cut], self.joint_positions[cut],
+                          self.velocity[cut], {name: x[cut] for name, x in self.diagnostics.items()}, self.interrupted)
+
+    @classmethod
+    def concatenate(cls, parts: list["Trajectory"]) -> "Trajectory":
+        """Consecutive parts of a run as one trajectory (interrupted when the last part is)."""
+        if len(parts) == 1:
+            return parts[0]
+        cat = lambda name: torch.cat([getattr(p, name) for p in parts])  # noqa: E731
+        diagnostics = {name: torch.cat([p.diagnostics[name] for p in parts]) for name in parts[0].diagnostics}
+        return cls(cat("time"), cat("base_position"), cat("base_rotation"), cat("joint_positions"), cat("velocity"),
+                   diagnostics, parts[-1].interrupted)
 
     @classmethod
     def preallocated(cls, time: torch.Tensor, state: State, diagnostics: StepDiagnostics) -> "TrajectoryBuffer":

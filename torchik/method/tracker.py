@@ -31,7 +31,7 @@ import dataclasses
 import math
 import time
 import warnings
-from typing import Sequence
+from typing import Generator, Iterable, Sequence
 
 import torch
 
@@ -42,8 +42,9 @@ from .invariant import broken_subjects
 from .kinematics import KinematicModel
 from .qp import QPBackend, make_backend
 from .scheme import Evaluation, SchemeHistory
+from .sequence import run_parts
 from .settings import SCHEMES, TrackerSettings, check_settings
-from .state import State, StepDiagnostics, TargetSequence, Trajectory, TrajectoryBuffer
+from .state import State, StepDiagnostics, TargetSequence, Trajectory
 from .step_kinematics import StepKinematics, step_kinematics
 from .step_task import step_task, tracking_errors
 from .structure import BatchSetup, StepStructure
@@ -318,50 +319,13 @@ class DynamicalIK:
         subject-steps). interruptible: Ctrl-C stops the run between steps and the trajectory holds
         the steps done, with `interrupted` True (KeyboardInterrupt still rises before the first).
         """
-        T = len(sequence)
-        if T == 0:
+        if len(sequence) == 0:
             raise InputError("the sequence is empty")
-        if T > 1 and not bool((sequence.time[1:] > sequence.time[:-1]).all()):
-            raise InputError("sequence.time must be strictly increasing")
-        first = sequence[0]
-        self.reset(initial if initial is not None else self.initial_state(first), batch=first.batch)
-        time_steps = self._time_steps(sequence.time, first.batch)
-        if progress is None:
-            progress = T * first.batch > 20000
-        bar = None
-        if progress:
-            from tqdm import tqdm
+        return next(iter(run_parts(self, [sequence], sequence.time, initial, progress, interruptible)))
 
-            bar = tqdm(total=T, desc="tracking", unit="step", leave=False, delay=1.0)
-        buffer: TrajectoryBuffer | None = None
-        interrupted = False
-        try:
-            for k in range(T):
-                state, diagnostic = self.step(sequence[k], time_steps(k))
-                if buffer is None:
-                    buffer = Trajectory.preallocated(sequence.time, state, diagnostic)
-                buffer.put(state, diagnostic)
-                if bar is not None:
-                    bar.update()
-        except KeyboardInterrupt:
-            if not interruptible or buffer is None:
-                raise
-            interrupted = True
-        finally:
-            if bar is not None:
-                bar.close()
-        assert buffer is not None  # T > 0 steps were taken, or the interrupt rose
-        return buffer.trajectory(interrupted)
-
-    def _time_steps(self, time_: torch.Tensor, B: int):
-        """Step k's dt for `run`, a function of k: None (the nominal dt, which the step uses without
-        checks or tensor arithmetic) where the timestamps' gap is the nominal one to their rounding,
-        else the gap [B] (made when asked: a tensor per step held for the whole run would weigh more
-        than the trajectory)."""
-        T = len(time_)
-        gaps = (time_[1:] - time_[:-1]).to(self.model.dtype)
-        rounding = 64 * torch.finfo(time_.dtype).eps * float(time_.abs().max()) if T > 1 else 0.0
-        nominal = [True] + ((gaps - self.dt).abs() <= rounding).tolist()
-        gaps = gaps.to(self.model.device)
-        return lambda k: None if nominal[k] else gaps[k - 1].expand(B)
+    def run_parts(self, parts: Iterable[TargetSequence], time: torch.Tensor, initial: State | None = None,
+                  progress: bool | None = None, interruptible: bool = False) -> Generator[Trajectory, None, None]:
+        """`run` over a sequence given a part at a time (time [T]: all its time stamps; parts: its
+        targets, in order): yields each part's trajectory when done (`sequence.run_parts`)."""
+        return run_parts(self, parts, time, initial, progress, interruptible)
 

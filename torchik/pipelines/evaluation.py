@@ -5,6 +5,7 @@ measure with these."""
 
 from __future__ import annotations
 
+import math
 from typing import Iterator
 
 import torch
@@ -47,14 +48,18 @@ def link_motion(model: KinematicModel, trajectory: Trajectory, links, scheme: st
 
 
 def link_motion_chunks(model: KinematicModel, trajectory: Trajectory, links, scheme: str | None = "midpoint",
-                       chunk: int = 4096) -> Iterator[tuple[slice, torch.Tensor, torch.Tensor]]:
+                       chunk: int = 4096, next_velocity: torch.Tensor | None = None
+                       ) -> Iterator[tuple[slice, torch.Tensor, torch.Tensor]]:
     """`link_motion` a few time steps at a time: (steps, rotations [t,B,L,3,3], angular velocities
-    [t,B,L,3]), so that a long trajectory's metrics need memory for one chunk of link motion only."""
+    [t,B,L,3]), so that a long trajectory's metrics need memory for one chunk of link motion only.
+    next_velocity [B,6+n]: the velocity of the step after the trajectory's last, when it is a part of
+    a longer run (the midpoint scheme's estimate at t_k averages the steps around it)."""
     links = tuple(links)
     mask = model.select(links).ancestor_mask  # [L,n]
     velocity = trajectory.velocity  # [T,B,6+n]
-    if scheme == "midpoint" and len(velocity) > 1:
-        velocity = torch.cat((0.5 * (velocity[:-1] + velocity[1:]), velocity[-1:]))
+    if scheme == "midpoint":
+        following = velocity[1:] if next_velocity is None else torch.cat((velocity[1:], next_velocity[None]))
+        velocity = torch.cat((0.5 * (velocity[:len(following)] + following), velocity[len(following):]))
     B, L = velocity.shape[1], len(links)
     with torch.inference_mode():
         for steps, m, p, R, s in time_chunks(model, trajectory, chunk):
@@ -72,14 +77,15 @@ def known_targets(sequence: TargetSequence, frames: int | None = None) -> torch.
 
 
 def tracking_errors(model: KinematicModel, trajectory: Trajectory, sequence: TargetSequence, links,
-                    scheme: str | None = "midpoint") -> dict[str, torch.Tensor]:
+                    scheme: str | None = "midpoint", next_velocity: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
     """The paper's metrics of every subject at every sample: mnte [T,B] and rmse [T,B] (rad/s),
     estimate at t_k against the targets at t_k (`sequence` cut to the trajectory's length; scheme
-    as `link_motion`'s). NaN where any target of the sample is missing."""
+    and next_velocity as `link_motion_chunks`'). NaN where any target of the sample is missing."""
     T, B = trajectory.velocity.shape[:2]
     known = known_targets(sequence, T)
     out = {name: trajectory.velocity.new_full((T, B), float("nan")) for name in ("mnte", "rmse")}
-    for steps, R_hat, w_hat in link_motion_chunks(model, trajectory, links, scheme):  # a chunk at a time: bounded memory
+    chunks = link_motion_chunks(model, trajectory, links, scheme, next_velocity=next_velocity)
+    for steps, R_hat, w_hat in chunks:  # a chunk at a time: bounded memory
         ok = known[steps]
         out["mnte"][steps] = torch.where(ok, mnte(sequence.rotation[steps], R_hat), out["mnte"][steps])
         out["rmse"][steps] = torch.where(ok, angular_velocity_rmse(sequence.angular_velocity[steps], w_hat),
@@ -123,13 +129,70 @@ def tracking_statistics(trajectory: Trajectory, sequence: TargetSequence, record
     no frame is known) and, when the recording carries the model's joint angles, joint_error_rad
     (max, rms). trajectory: [T,1,...] with the mnte and rmse diagnostics (`tracking_errors`);
     sequence: its targets (at least T frames)."""
-    done, time, d = len(trajectory.time), trajectory.time, trajectory.diagnostics
-    known = known_targets(sequence, done)[:, 0]  # [T]
-    any_known = bool(known.any())
-    out = dict(mnte=summary(d["mnte"][known, 0], time[known], transient) if any_known else None,
-               angular_velocity_rmse=summary(d["rmse"][known, 0], time[known], transient) if any_known else None)
-    if recording.joint_positions is not None and recording.joint_names == model.joint_names:
-        truth = torch.from_numpy(recording.joint_positions[:done]).to(trajectory.joint_positions)
-        err = after_transient((trajectory.joint_positions[:, 0] - truth).abs(), time, transient)
-        out["joint_error_rad"] = dict(max=float(err.max()), rms=float(err.square().mean().sqrt()))
-    return out
+    statistics = TrackingStatistics(model, transient, len(trajectory.time))
+    statistics.add(trajectory, sequence, recording)
+    return statistics.result()
+
+
+class Series:
+    """Per-sample values of a run of at most `frames` samples, given a part at a time (`append`) into
+    one tensor allocated with the first: a long run keeps no small blocks between its parts' large
+    temporaries, which would keep the heap from shrinking."""
+
+    def __init__(self, frames: int):
+        self.frames, self.done = frames, 0
+        self.buffer: torch.Tensor | None = None
+
+    def append(self, values: torch.Tensor) -> None:
+        """values [t,...] for the next t samples."""
+        if self.buffer is None:
+            self.buffer = values.new_empty((self.frames, *values.shape[1:]))
+        self.buffer[self.done:self.done + len(values)] = values
+        self.done += len(values)
+
+    def values(self) -> torch.Tensor:
+        """[T,...]: the samples given."""
+        assert self.buffer is not None  # a part was given
+        return self.buffer[:self.done]
+
+
+class TrackingStatistics:
+    """`tracking_statistics` of a run of at most `frames` samples given a part at a time (`add` each,
+    in order): the per-sample metrics its summaries are taken of (two numbers a step), sums for the
+    joint error."""
+
+    def __init__(self, model: KinematicModel, transient: float, frames: int):
+        self.model, self.transient = model, transient
+        self.time, self.known = Series(frames), Series(frames)
+        self.metrics = dict(mnte=Series(frames), rmse=Series(frames))
+        # joint error: max and sum of squares (and their count) after the transient, and over all samples
+        # (what is reported when the run is shorter than the transient)
+        self.joints: dict[str, list[float]] | None = None
+
+    def add(self, trajectory: Trajectory, sequence: TargetSequence, recording: Recording) -> None:
+        """A part: trajectory [t,1,...] with mnte and rmse, its targets and recording from its first sample."""
+        done, time, d = len(trajectory.time), trajectory.time, trajectory.diagnostics
+        start = float((self.time.values() if self.time.done else time)[0])
+        self.time.append(time)
+        self.known.append(known_targets(sequence, done)[:, 0])  # [t]
+        for name, series in self.metrics.items():
+            series.append(d[name][:, 0])
+        if recording.joint_positions is not None and recording.joint_names == self.model.joint_names:
+            truth = torch.from_numpy(recording.joint_positions[:done]).to(trajectory.joint_positions)
+            error = (trajectory.joint_positions[:, 0] - truth).abs()
+            self.joints = self.joints or dict(after=[0.0, 0.0, 0], all=[0.0, 0.0, 0])
+            for which, e in (("after", error[time >= start + self.transient]), ("all", error)):
+                if e.numel():
+                    total = self.joints[which]
+                    total[:] = [max(total[0], float(e.max())), total[1] + float(e.square().sum()), total[2] + e.numel()]
+
+    def result(self) -> dict:
+        """mnte, angular_velocity_rmse and (with ground truth) joint_error_rad, as `tracking_statistics`."""
+        time, known = self.time.values(), self.known.values()
+        any_known = bool(known.any())
+        out: dict = {name: summary(series.values()[known], time[known], self.transient) if any_known else None
+                     for name, series in zip(("mnte", "angular_velocity_rmse"), self.metrics.values())}
+        if self.joints is not None:
+            peak, squares, count = self.joints["after" if self.joints["after"][2] else "all"]
+            out["joint_error_rad"] = dict(max=peak, rms=math.sqrt(squares / count))
+        return out

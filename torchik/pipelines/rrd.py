@@ -39,7 +39,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError, optional
-from ..io.files import replacing
+from ..io.files import PartFile
 from ..method.kinematics import KinematicModel
 from ..method.state import TargetSequence, Trajectory
 from .evaluation import time_chunks
@@ -76,47 +76,98 @@ def log_trajectory(path: str | Path, model: KinematicModel, links: Sequence[str]
     second. The file is written beside `path` and moved onto it when complete: an interrupted
     call leaves no partial file. Returns the path.
     """
-    links, path = tuple(links), Path(path)
-    position_links = tuple(position_links) if position_links is not None else (model.base_link,)
     T, B = trajectory.joint_positions.shape[:2]
-    subjects = list(range(B)) if subjects is None else list(subjects)
-    if not subjects or not all(0 <= i < B for i in subjects):
-        raise InputError(f"subjects: expected indices in [0, {B}), got {subjects}")
-    if trajectory.time.shape != (T,):
-        raise InputError(f"trajectory.time: expected shape [{T}], got {list(trajectory.time.shape)}")
     if targets is not None:
-        _check_targets(targets, T, B, len(links), len(position_links))
-    if urdf is None and Path(model.source).is_file():
-        urdf = model.source
-    shapes = visuals(urdf) if urdf is not None else {}
-    unknown = sorted(set(shapes) - set(model.link_names))
-    if unknown:
-        raise InputError(f"urdf: links {unknown} are not in model {model.name!r}: is it the model's URDF?")
-    per_subject, per_batch = _split_diagnostics(trajectory.diagnostics, T, B, len(links) + len(position_links))
+        _check_targets(targets, T, B, len(links), len(position_links) if position_links is not None else 1)
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(subjects) + 1, desc=f"writing {path.name}", unit="part", leave=False, delay=1.0)
-    columns = _Columns.of(model, links, position_links, shapes, trajectory, per_subject, chunk)
-    if bar is not None:
-        bar.update()
-
-    rec = rr.RecordingStream(app_id, recording_id=uuid.uuid4())  # else one id per process: viewers would merge files
+        bar = tqdm(total=T, desc=f"writing {Path(path).name}", unit="step", leave=False, delay=1.0)
     try:
-        with replacing(path) as part:
-            rec.save(part, default_blueprint=blueprint(subjects, aggregate=B > 1))
-            rec.send_recording_name(path.stem)
-            rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-            _log_batch(rec, columns, {i: i for i in subjects}, targets, trajectory.time, per_batch, axis_length,
-                       set(subjects), bar.update if bar is not None else None)
-            rec.flush()
-            rec.disconnect()  # closes the file, with its footer, before it is moved into place
+        with RrdWriter(path, model, links, position_links=position_links, urdf=urdf, subjects=subjects, app_id=app_id,
+                       axis_length=axis_length, chunk=chunk) as writer:
+            for start in range(0, max(T, 1), chunk):
+                writer.write(trajectory.part(start, start + chunk),
+                             None if targets is None else targets.part(start, min(start + chunk, T)))
+                if bar is not None:
+                    bar.update(min(chunk, T - start))
+            return writer.commit()
     finally:
         if bar is not None:
             bar.close()
-    return path
 
+
+class RrdWriter:
+    """A rerun recording written as a run goes: `write` each part of the trajectory (with its
+    targets) in order, then `commit`; the file streams to a hidden path beside `path`, moved onto it
+    by `commit` (leaving the `with` block without it leaves nothing). Arguments as `log_trajectory`'s;
+    memory is one part's. The entities are `StepLogger`'s, the live session's."""
+
+    def __init__(self, path: str | Path, model: KinematicModel, links: Sequence[str], *,
+                 position_links: Sequence[str] | None = None, urdf: str | Path | None = None,
+                 subjects: Sequence[int] | None = None, app_id: str = "torchik", axis_length: float = 0.08,
+                 chunk: int = 4096):
+        if urdf is None and Path(model.source).is_file():
+            urdf = model.source
+        self.shapes = visuals(urdf) if urdf is not None else {}
+        unknown = sorted(set(self.shapes) - set(model.link_names))
+        if unknown:
+            raise InputError(f"urdf: links {unknown} are not in model {model.name!r}: is it the model's URDF?")
+        self.model, self.links, self.position_links = model, tuple(links), position_links
+        self.subjects = None if subjects is None else list(subjects)
+        self.app_id, self.axis_length, self.chunk = app_id, axis_length, chunk
+        self.file = PartFile(path)
+        self.logger: StepLogger | None = None  # made with the recording, at the first part
+        self.batch = 0
+
+    def write(self, trajectory: Trajectory, targets: TargetSequence | None = None) -> None:
+        """A part of the run: trajectory [t,B,...] with its diagnostics, targets [t,B,...] or None."""
+        T, B = trajectory.joint_positions.shape[:2]
+        if trajectory.time.shape != (T,):
+            raise InputError(f"trajectory.time: expected shape [{T}], got {list(trajectory.time.shape)}")
+        if self.logger is None:
+            self._open(B)
+        assert self.logger is not None and self.subjects is not None
+        if B != self.batch:
+            raise InputError(f"a part of {B} subjects; the recording's earlier parts had {self.batch}")
+        if targets is not None:
+            _check_targets(targets, T, B, len(self.links), len(self.logger.position_links))
+        self.logger.log(trajectory, targets, range(B), rows=self.subjects)
+        self.logger.rec.flush()  # to the file: what rerun holds stays one part's
+
+    def commit(self) -> Path:
+        """The recording closed (with its footer) and moved onto the path; returns it."""
+        if self.logger is None:
+            raise InputError("no part of the trajectory was written")
+        self.logger.rec.flush()
+        self.logger.rec.disconnect()
+        self.logger = None
+        return self.file.commit()
+
+    def close(self) -> None:
+        """Stop writing; without commit, the file is removed."""
+        if self.logger is not None:
+            self.logger.rec.disconnect()
+            self.logger = None
+        self.file.discard()
+
+    def __enter__(self) -> "RrdWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _open(self, B: int) -> None:
+        self.subjects = list(range(B)) if self.subjects is None else self.subjects
+        if not self.subjects or not all(0 <= i < B for i in self.subjects):
+            raise InputError(f"subjects: expected indices in [0, {B}), got {self.subjects}")
+        rec = rr.RecordingStream(self.app_id, recording_id=uuid.uuid4())  # else one id per process: viewers merge files
+        rec.save(self.file.part, default_blueprint=blueprint(self.subjects, aggregate=B > 1))
+        rec.send_recording_name(self.file.path.stem)
+        self.logger = StepLogger(rec, self.model, self.links, self.position_links, axis_length=self.axis_length,
+                                 shapes=self.shapes, chunk=self.chunk)
+        self.batch = B
 
 
 class StepLogger:
@@ -127,32 +178,33 @@ class StepLogger:
 
     def __init__(self, rec: rr.RecordingStream, model: KinematicModel, links: Sequence[str],
                  position_links: Sequence[str] | None = None, urdf: str | Path | None = None, axis_length: float = 0.08,
-                 shapes: dict[str, list[Visual]] | None = None):
+                 shapes: dict[str, list[Visual]] | None = None, chunk: int = 4096):
         """urdf: whose visuals draw the body (default the model's file); shapes: those visuals, read
-        already (`visuals(urdf)`)."""
+        already (`visuals(urdf)`); chunk: rows per kinematics call."""
         self.rec, self.model, self.links = rec, model, tuple(links)
         self.position_links = tuple(position_links) if position_links is not None else (model.base_link,)
         if urdf is None and Path(model.source).is_file():
             urdf = model.source
         self.shapes = shapes if shapes is not None else visuals(urdf) if urdf is not None else {}
         self.bones = _bones(model, self.links)
-        self.axis_length = axis_length
+        self.axis_length, self.chunk = axis_length, chunk
         self.logged: set[int] = set()
 
-    def log(self, trajectory: Trajectory, targets: TargetSequence | None, names: Sequence[int]) -> None:
+    def log(self, trajectory: Trajectory, targets: TargetSequence | None, names: Sequence[int],
+            rows: Sequence[int] | None = None) -> None:
         """trajectory: a few steps [T,B,...] with their diagnostics (residual_norm [T,B,n_targets],
         the per-subject ones [T,B], the batch's [T]); targets: theirs [T,B,...]; row i is subject
-        names[i]."""
+        names[i]; rows: the rows given their own entity tree (default all; the aggregate covers all)."""
         T, B = trajectory.joint_positions.shape[:2]
         if not self.logged:
             self.rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         per_subject, per_batch = _split_diagnostics(trajectory.diagnostics, T, B,
                                                     len(self.links) + len(self.position_links))
-        columns = _Columns.of(self.model, self.links, self.position_links, self.shapes, trajectory, per_subject, 4096,
-                              self.bones)
-        new = set(names) - self.logged
-        _log_batch(self.rec, columns, dict(enumerate(names)), targets, trajectory.time, per_batch, self.axis_length,
-                   new)
+        columns = _Columns.of(self.model, self.links, self.position_links, self.shapes, trajectory, per_subject,
+                              self.chunk, self.bones)
+        shown = {i: names[i] for i in (range(B) if rows is None else rows)}
+        new = set(shown.values()) - self.logged
+        _log_batch(self.rec, columns, shown, targets, trajectory.time, per_batch, self.axis_length, new)
         self.logged |= new
 
 @dataclass

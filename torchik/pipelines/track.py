@@ -1,22 +1,51 @@
-"""Track a recording with a model and report how well it went: the pipeline behind `torchik track`."""
+"""Track a recording with a model and report how well it went: the pipeline behind `torchik track`.
+
+A recording is tracked a chunk of frames at a time (`track_chunks`): read (from a RecordingFile
+or a Recording in memory), implausible samples dropped, made targets, tracked with the state
+carried over, measured, and handed to the outputs (the report's figures, the trajectory file, the
+rerun recording) as the next chunks are read. Memory is a few chunks', whatever the length; the
+trajectory, the report and the outputs are those of tracking the whole recording at once.
+"""
 
 from __future__ import annotations
 
 import dataclasses
-import math
+from collections import deque
+from typing import Iterable, Iterator, Protocol
 
 import numpy as np
 import torch
 
 from ..errors import InputError
-from ..io.plausible import Plausibility, drop_implausible
+from ..io.plausible import ImplausibleFilter, Plausibility
 from ..io.recording import Recording
-from ..io.targets import recording_targets
+from ..io.targets import target_chunks
 from ..method.kinematics import KinematicModel
 from ..method.settings import TrackerSettings
-from ..method.state import Trajectory
+from ..method.state import TargetSequence, Trajectory
 from ..method.tracker import DynamicalIK
-from .evaluation import position_errors, summary, tracking_errors, tracking_statistics
+from .evaluation import tracking_errors
+from .interrupts import deferred_interrupts
+from .track_summary import TrackSummary
+
+# frames read, tracked and written at a time: 41 s at 100 Hz, a few tens of MB for Human66; as many as
+# the metrics' kinematics take per call (evaluation.py), so that they too are those of a run in one piece
+CHUNK = 4096
+
+
+class Source(Protocol):
+    """A recording to track: a Recording in memory or a RecordingFile read a chunk at a time."""
+
+    time: np.ndarray
+    links: tuple[str, ...]
+
+    def chunks(self, size: int) -> Iterator[Recording]: ...
+
+
+class Output(Protocol):
+    """Where each tracked part goes as the run goes (a file writer, a collector)."""
+
+    def write(self, trajectory: Trajectory, targets: TargetSequence) -> None: ...
 
 
 def track_recording(model: KinematicModel, recording: Recording, links, settings: TrackerSettings | None = None,
@@ -32,85 +61,101 @@ def track_recording(model: KinematicModel, recording: Recording, links, settings
     trajectory and report then cover the frames done and report["interrupted"] is True.
     position_links: the links with position targets (default the base; others need the recording's
     `position`); with any, the report's position_error_m gives their distance to the estimate."""
-    links = tuple(links)
-    recording, implausible = drop_implausible(recording, plausibility or Plausibility())
-    sequence = recording_targets(recording, links, position_links, dtype=model.dtype, device=model.device)
-    if links and not bool(torch.isfinite(sequence.rotation).flatten(-2).all(-1).any()):
+    collected, settings = Collected(), settings or TrackerSettings()
+    settings = dataclasses.replace(settings, dt=nominal_dt(recording, settings))
+    summary, implausible, interrupted = track_chunks(model, recording, links, settings, [collected], progress=progress,
+                                                     transient=transient, position_links=position_links,
+                                                     plausibility=plausibility)
+    return Trajectory.concatenate(collected.parts), summary.report(settings, implausible, interrupted)
+
+
+class Collected:
+    """An output that keeps every part (what `track_recording` returns, concatenated)."""
+
+    def __init__(self) -> None:
+        self.parts: list[Trajectory] = []
+
+    def write(self, trajectory: Trajectory, targets: TargetSequence) -> None:
+        self.parts.append(trajectory)
+
+
+def track_chunks(model: KinematicModel, source: Source, links, settings: TrackerSettings, outputs: Iterable[Output] = (),
+                 *, progress: bool = False, transient: float = 2.0, position_links=None,
+                 plausibility: Plausibility | None = None, chunk: int = CHUNK) -> tuple[TrackSummary, int, bool]:
+    """Track `source` a chunk of `chunk` frames at a time with `settings` (dt: the nominal step),
+    each part of the trajectory, with its mnte and rmse diagnostics (`tracking_errors`), written to
+    every output as it is done. Returns the run's TrackSummary, the number of samples dropped as
+    implausible, and whether Ctrl-C (or SIGTERM) stopped the run (the outputs then hold the frames
+    done). The recording is read once before the tracking: what is wrong with it (a frame that is
+    not valid, nothing measured) is said before any work."""
+    links, bounds = tuple(links), plausibility or Plausibility()
+    position_links = tuple(position_links) if position_links is not None else None
+    targets = lambda counted: target_chunks(_plausible(source.chunks(chunk), bounds, counted), links,  # noqa: E731
+                                            position_links, dtype=model.dtype, device=model.device)
+    implausible = _check_measured(targets, links, len(source.time))
+    summary = TrackSummary(model, links, position_links, transient, len(source.time))
+    pending: deque[tuple[Recording, TargetSequence]] = deque()  # given to the tracker, their parts not yet back
+
+    def parts() -> Iterator[TargetSequence]:
+        for recording, sequence in targets([0]):
+            pending.append((recording, sequence))
+            yield sequence
+
+    def deliver(part: Trajectory, recording: Recording, sequence: TargetSequence, following: torch.Tensor | None):
+        """A part measured and written; following: the next part's first velocity, None after the last."""
+        part.diagnostics.update(tracking_errors(model, part, sequence, links, settings.scheme, following))
+        summary.add(part, sequence, recording)
+        for output in outputs:
+            output.write(part, sequence)
+
+    time = torch.as_tensor(source.time, dtype=model.dtype, device=model.device)
+    run = DynamicalIK(model, links, position_links, settings=settings).run_parts(parts(), time, progress=progress,
+                                                                                 interruptible=True)
+    held = None  # a part waits for the next one's first velocity: its last estimate averages the two steps
+    interrupted = False
+    try:
+        for part in run:
+            recording, sequence = pending.popleft()
+            interrupted = part.interrupted
+            with deferred_interrupts():  # every output gets a part, or none does
+                if held is not None:
+                    deliver(*held, part.velocity[0] if len(part.time) else None)
+                held = (part, recording, sequence) if len(part.time) else None
+    except KeyboardInterrupt:  # while a part was handed over: the outputs hold the parts before it
+        if held is None and not summary.frames:
+            raise
+        interrupted = True
+    finally:
+        run.close()
+    if held is not None:
+        with deferred_interrupts():
+            deliver(*held, None)
+    return summary, implausible, interrupted
+
+
+def _plausible(chunks: Iterable[Recording], bounds: Plausibility, counted: list[int]) -> Iterator[Recording]:
+    """The chunks with their implausible samples dropped (`ImplausibleFilter`), counted in counted[0]."""
+    drop = ImplausibleFilter(bounds)
+    for chunk in chunks:
+        chunk, count = drop(chunk)
+        counted[0] += count
+        yield chunk
+
+
+def _check_measured(targets, links: tuple[str, ...], frames: int) -> int:
+    """Every chunk of `targets(counted)` made once (the reader validates each as it reads it);
+    InputError when no orientation target is measured in any frame. Returns the number of samples
+    dropped as implausible."""
+    counted, measured = [0], not links
+    for _, sequence in targets(counted):
+        measured = measured or bool(torch.isfinite(sequence.rotation).flatten(-2).all(-1).any())
+    if not measured:
         # the pose would only be integrated from the base's velocity: no figure of it could be checked
         raise InputError(f"no orientation of the tracked links ({len(links)}) is measured in any of the "
-                         f"{len(recording.time)} frames (all missing, non-finite or implausible): nothing to track")
-    settings = settings or TrackerSettings()
-    dt = nominal_dt(recording, settings)
-    settings = dataclasses.replace(settings, dt=dt)
-    trajectory = DynamicalIK(model, links, position_links, settings=settings).run(sequence, progress=progress,
-                                                                                  interruptible=True)
-    done = len(trajectory.time)
-    trajectory.diagnostics.update(tracking_errors(model, trajectory, sequence, links, settings.scheme))
-    time = trajectory.time
-    d = trajectory.diagnostics
-    report = dict(
-        model=model.name, links=len(links), frames=done, duration_s=float(time[-1] - time[0]),
-        rate_hz=1.0 / dt, scheme=settings.scheme, backend=settings.backend,
-        gains=dict(position=settings.position_gain, orientation=settings.orientation_gain),
-        transient_s=transient,
-        **tracking_statistics(trajectory, sequence, recording, model, transient),
-        step_time_ms={k: v * 1e3 for k, v in summary(d["step_time"], time, 0.0).items()},
-        qp_fallbacks=int((~d["solved"]).sum()), dropped_targets=int(d["dropped"].sum()),
-        projected_targets=int(d["projected"].sum()), implausible_samples=implausible,
-        failed_steps=int(d["failed"].sum()), failed_subjects=d["failed"].any(0).nonzero()[:, 0].tolist(),
-        segments=segments(time, d["new_segment"][:, 0]),
-        active_constraints_mean=float(d["active_constraints"].double().mean()), interrupted=trajectory.interrupted,
-    )
-    if settings.compile:  # the steps replayed compiled (their kinematics are not timed apart: NaN)
-        report["compiled_steps"] = int(torch.isnan(d["kinematics_time"]).sum())
-    if position_links is not None:
-        error = position_errors(model, trajectory, sequence, position_links)[:, 0]  # [T,P]
-        report["position_error_m"] = {link: summary(e[torch.isfinite(e)], time[torch.isfinite(e)], transient)
-                                      for link, e in zip(position_links, error.unbind(-1)) if bool(torch.isfinite(e).any())}
-    return trajectory, report
+                         f"{frames} frames (all missing, non-finite or implausible): nothing to track")
+    return counted[0]
 
 
-def nominal_dt(recording: Recording, settings: TrackerSettings) -> float:
+def nominal_dt(recording: Source, settings: TrackerSettings) -> float:
     """The time step `track_recording` tracks at: the median frame interval (settings.dt for one frame)."""
     return float(np.median(np.diff(recording.time))) if len(recording.time) > 1 else settings.dt
-
-
-def segments(time: torch.Tensor, new_segment: torch.Tensor) -> list[list[float]]:
-    """[start, end] s of the stretches between gaps: time [T], new_segment [T] bool (True where a gap
-    ended and the tracker restarted)."""
-    starts = [0] + new_segment[1:].nonzero()[:, 0].add(1).tolist()
-    ends = [k - 1 for k in starts[1:]] + [len(time) - 1]
-    return [[float(time[a]), float(time[b])] for a, b in zip(starts, ends)]
-
-
-def output_fault(trajectory: Trajectory, report: dict, max_failed: float) -> str | None:
-    """Why a tracked run must not be trusted (a line), or None: a non-finite value in the trajectory
-    or the report's figures, or steps failed (the invariant broken, the subject restarted) on more
-    than `max_failed` (a fraction) of some subject's steps."""
-    d = trajectory.diagnostics
-    for name in ("base_position", "base_rotation", "joint_positions", "velocity"):
-        bad = ~torch.isfinite(getattr(trajectory, name)).flatten(2).all(-1)  # [T,B]
-        if bool(bad.any()):
-            return (f"non-finite {name} at {int(bad.any(1).sum())} steps (subjects {_listed(bad.any(0))}); "
-                    "no output written")
-    if not _finite_numbers(report):
-        return "a non-finite figure in the report; no output written"
-    failed = d["failed"]  # [T,B]
-    fraction = failed.double().mean(0)  # [B]
-    if bool((fraction > max_failed).any()):
-        return (f"{int(failed.sum())} steps failed (a non-finite state, a rotation not orthonormal or joints beyond their "
-                f"limits: the subject restarted) for subjects {_listed(failed.any(0))}, over --max-failed "
-                f"{max_failed:g} of the steps; no output written")
-    return None
-
-
-def _listed(subjects: torch.Tensor) -> str:
-    return ", ".join(str(b) for b in subjects.nonzero()[:, 0].tolist())
-
-
-def _finite_numbers(value) -> bool:
-    if isinstance(value, dict):
-        return all(_finite_numbers(v) for v in value.values())
-    if isinstance(value, (list, tuple)):
-        return all(_finite_numbers(v) for v in value)
-    return not isinstance(value, float) or math.isfinite(value)
