@@ -151,6 +151,11 @@ class TreeHessian:
         held at given values in `TreeFactor.solve`. extra: [B,N] or None."""
         return TreeFactor(self, free, extra)
 
+    def select(self, subjects: torch.Tensor) -> "TreeHessian":
+        """The Hessians of the subjects [k] (indices)."""
+        pick = lambda t: t.index_select(0, subjects)  # noqa: E731
+        return TreeHessian(self.tree, pick(self.axes), pick(self.node_weight), pick(self.position_weight), self.damping)
+
 
 class TreeFactor:
     """H restricted to the free variables, factorised leaves first (see the module's docstring).
@@ -187,6 +192,17 @@ class TreeFactor:
         # the solve backward stable there
         self.base_factor = torch.linalg.cholesky_ex(base)[0]
         self.linear = (hessian.position_weight[None, :] + diagonal[:3])  # [3,B]
+
+    def select(self, subjects: torch.Tensor) -> "TreeFactor":
+        """The factorisation of the subjects [k] (indices), without factorising again."""
+        last = lambda t: t.index_select(-1, subjects)  # noqa: E731  (batch-last tensors)
+        picked = object.__new__(TreeFactor)
+        picked.free, picked.linear = last(self.free), last(self.linear)
+        picked.steps = [(joints, parents, last(a), last(u), last(gain), last(held))
+                        for joints, parents, a, u, gain, held in self.steps]
+        picked.base_weight = self.base_weight.index_select(0, subjects)
+        picked.base_factor = self.base_factor.index_select(0, subjects)
+        return picked
 
     def solve(self, rhs: torch.Tensor, held: torch.Tensor | None = None) -> torch.Tensor:
         """x with (H x)_i = rhs_i on the free variables and x_i = held_i on the others.
