@@ -26,7 +26,7 @@ def broken_subjects(state: State, rotation: torch.Tensor, joints_before: torch.T
     its limits is pulled in, not failed); None when no subject does. One number leaves the device in
     the usual case, NaN and Inf propagating through its sums."""
     R = rotation
-    deviation = (R.transpose(-1, -2) @ R - so3.identity(R.dtype, R.device)).abs().flatten(1).amax(-1)  # [B]
+    deviation = so3.gram_deviation(R).abs().amax(-1)  # [B]
     outward = _beyond_limits(state.joint_positions, lower, upper) - _beyond_limits(joints_before, lower, upper)  # [B,n]
     furthest = outward.amax(-1) if outward.shape[-1] else torch.zeros_like(deviation)  # [B]
     measure = torch.maximum(deviation / ROTATION_TOLERANCE, furthest / LIMIT_TOLERANCE)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import torch
 
 from .residual import orientation_residual
+from .so3 import sum3
 
 
 def orientation_error(R_target: torch.Tensor, R_estimate: torch.Tensor,
@@ -30,7 +31,7 @@ def orientation_error(R_target: torch.Tensor, R_estimate: torch.Tensor,
     cos = ((R_estimate * R_target).sum((-1, -2)) - 1.0) / 2.0  # tr(R_hat^T R) without the product
     if residual is None:
         residual = orientation_residual(R_target, R_estimate)
-    sin_squared = residual.square().sum(-1)
+    sin_squared = sum3(residual.square())
     return torch.where(cos > 0, sin_squared / (1.0 + cos.clamp(min=0.0)), 1.0 - cos)
 
 

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import torch
 
+from .so3 import sum3
+
 
 def position_residual(p_target: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
     """p_target - p. p_target, p: [B,n,3] -> [B,n,3]."""
@@ -26,7 +28,7 @@ def orientation_residual(R_target: torch.Tensor, R_hat: torch.Tensor) -> torch.T
     hat(R_hat v); with columns h_i of R_hat and t_i of R_target, R_target R_hat^T = sum_i t_i h_i^T,
     whose skew part's vector is (1/2) sum_i h_i x t_i: three cross products, no matrix product.
     """
-    return 0.5 * torch.linalg.cross(R_hat, R_target, dim=-2).sum(-1)
+    return 0.5 * sum3(torch.linalg.cross(R_hat, R_target, dim=-2))
 
 
 def corrected_velocity(velocity: torch.Tensor, residual: torch.Tensor, gain: torch.Tensor | float) -> torch.Tensor:

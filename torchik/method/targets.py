@@ -86,7 +86,7 @@ def clean_targets(targets: Targets, project_tolerance: float = PROJECT_TOLERANCE
     B, n_p, n_o = position.shape[0], position.shape[1], rotation.shape[1]
     eye = so3.identity(rotation.dtype, rotation.device)
     orthonormal_tolerance = max(orthonormal_tolerance, 100 * torch.finfo(rotation.dtype).eps)  # float32 rounding
-    deviation = rotation.transpose(-1, -2) @ rotation - eye
+    deviation = so3.gram_deviation(rotation)  # [B,n_o,6]
     # one number for the usual case, one synchronisation: the largest deviation from
     # orthonormality, NaN if any target is not finite (NaN and Inf propagate through the sums)
     largest = deviation.abs().amax() if n_o else rotation.new_zeros(())
@@ -104,11 +104,11 @@ def clean_targets(targets: Targets, project_tolerance: float = PROJECT_TOLERANCE
         rotation = torch.where(o_ok[..., None, None], rotation, eye)
         angular_velocity = torch.where(o_ok[..., None], angular_velocity, 0.0)
         all_valid = bool(p_ok.all()) and bool(o_ok.all())
-        deviation = rotation.transpose(-1, -2) @ rotation - eye
+        deviation = so3.gram_deviation(rotation)  # [B,n_o,6]
         worst = float(deviation.abs().max()) if n_o else 0.0
     projected = torch.zeros(B, dtype=torch.long, device=position.device)
     if n_o and worst > orthonormal_tolerance / 3:
-        error = deviation.flatten(-2).norm(dim=-1)  # [B,n_o]
+        error = so3.gram_deviation_norm(deviation)  # [B,n_o]
         far = error > project_tolerance
         if bool(far.any()):
             b, i = (int(x) for x in far.nonzero()[0])

@@ -248,19 +248,20 @@ def table(result: Profile) -> str:
     steps, B, peaks = result.steps, result.batch, result.peaks
     lines = [f"{result.model} B={B} {result.dtype}: {1e3 * result.wall_seconds / steps:.2f} ms/step wall; "
              f"peaks {peaks.gflops:.1f} GFLOP/s (float64 matmul), {peaks.gbytes:.1f} GB/s (copy)",
-             f"{'phase':22s} {'ms/step':>8s} {'us/subj':>8s} {'time':>6s} {'flop/subj':>10s} {'B/subj':>9s} "
+             f"{'phase':22s} {'ops':>5s} {'ms/step':>8s} {'us/subj':>8s} {'time':>6s} {'flop/subj':>10s} {'B/subj':>9s} "
              f"{'flop/B':>7s} {'GFLOP/s':>8s} {'GB/s':>7s} {'roofline':>8s}"]
     operations = sum(p.seconds for p in result.phases)
     for p in [*result.phases, Phase("all operations", operations, sum(p.flops for p in result.phases),
-                                    sum(p.bytes for p in result.phases))]:
+                                    sum(p.bytes for p in result.phases), sum(p.operations for p in result.phases))]:
         seconds = max(p.seconds, 1e-12)
         intensity = p.flops / max(p.bytes, 1.0)
         bound = min(peaks.gflops, intensity * peaks.gbytes)  # GFLOP/s this phase could reach
         rate = p.flops / seconds / 1e9
-        lines.append(f"{p.name:22s} {1e3 * p.seconds / steps:>8.2f} {1e6 * p.seconds / steps / B:>8.2f} "
+        lines.append(f"{p.name:22s} {p.operations / steps:>5.0f} {1e3 * p.seconds / steps:>8.2f} "
+                     f"{1e6 * p.seconds / steps / B:>8.2f} "
                      f"{p.seconds / max(operations, 1e-12):>6.1%} {p.flops / steps / B:>10,.0f} "
                      f"{p.bytes / steps / B:>9,.0f} {intensity:>7.2f} {rate:>8.2f} "
                      f"{p.bytes / seconds / 1e9:>7.2f} {(rate / bound if bound > 0 else 0.0):>8.1%}")
     overhead = max(result.wall_seconds - operations, 0.0)  # the operations' time is taken on other steps: a rough split
-    lines.append(f"{'python and dispatch':22s} {1e3 * overhead / steps:>8.2f} {1e6 * overhead / steps / B:>8.2f}")
+    lines.append(f"{'python and dispatch':22s} {'':5s} {1e3 * overhead / steps:>8.2f} {1e6 * overhead / steps / B:>8.2f}")
     return "\n".join(lines)

@@ -90,7 +90,6 @@ def solve_on(H, problem: QPProblem, upper, lower, rows, tolerance: float):
     factor = H.factor(~held)
     x = factor.solve(-g.unsqueeze(-1), value.unsqueeze(-1)).squeeze(-1)
     eta, rows_done, steps = None, torch.ones_like(held[:, 0]), 0
-    gradient = g
     if G is not None:
         assert h is not None and rows is not None  # a problem's G comes with its h, and the sets with rows
         eta = torch.zeros_like(h)
@@ -106,10 +105,23 @@ def solve_on(H, problem: QPProblem, upper, lower, rows, tolerance: float):
             rows = rows.index_copy(0, involved, solved[2])
             rows_done = rows_done.index_copy(0, involved, solved[3])
             steps = solved[4]
-        gradient = g + (eta @ G[0] if G.stride(0) == 0 else (G.transpose(1, 2) @ eta.unsqueeze(-1)).squeeze(-1))
-    gradient = H.matvec(x.unsqueeze(-1)).squeeze(-1) + gradient
-    nu = torch.where(held, -gradient, torch.zeros_like(gradient))
-    return x, nu, eta, rows, rows_done, steps
+    return x, _bound_multipliers(H, g, G, x, eta, held), eta, rows, rows_done, steps
+
+
+def _bound_multipliers(H, g, G, x, eta, held):
+    """-(H x + g + G^T eta) on the held variables, 0 on the free ones. -> [B,N]. Only the subjects
+    that hold a bound need the product with H: in tracking, few do."""
+    nu = torch.zeros_like(x)
+    holding = held.any(-1).nonzero().flatten()
+    if len(holding):
+        pick = functools.partial(select, holding)
+        gradient = H.select(holding).matvec(pick(x).unsqueeze(-1)).squeeze(-1) + pick(g)
+        if G is not None:
+            sub_G = pick(G)
+            gradient = gradient + (eta.index_select(0, holding) @ sub_G[0] if sub_G.stride(0) == 0 else
+                                   (sub_G.transpose(1, 2) @ eta.index_select(0, holding).unsqueeze(-1)).squeeze(-1))
+        nu = nu.index_copy(0, holding, torch.where(pick(held), -gradient, torch.zeros_like(gradient)))
+    return nu
 
 
 def _with_rows(H, factor, g, G, h, x, violation, rows, held, slack_tolerance, tolerance: float):
