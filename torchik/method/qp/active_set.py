@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 
@@ -27,6 +28,36 @@ from .rows import optimal_rows, row_values
 from .tree import TreeHessian
 
 Sets = tuple[torch.Tensor, torch.Tensor, "torch.Tensor | None"]  # (upper [B,N], lower [B,N], rows [B,m] or None)
+
+
+class Tolerances(NamedTuple):
+    """How far a free variable may pass a bound (bound [B,N]), a multiplier have the wrong sign
+    (multiplier [B,1]) or a row be violated (row [B,m], None without rows) before the active set
+    changes: `tolerance` relative to the bounds', the gradient's and the rows' sizes."""
+
+    bound: torch.Tensor
+    multiplier: torch.Tensor
+    row: torch.Tensor | None
+
+    @classmethod
+    def of(cls, problem: QPProblem, tolerance: float) -> "Tolerances":
+        g, lb, ub, G, h = problem.g, problem.lb, problem.ub, problem.G, problem.h
+        bound = tolerance * (1 + torch.nan_to_num(lb.abs(), posinf=0.0) + torch.nan_to_num(ub.abs(), posinf=0.0))
+        row = None
+        if G is not None:
+            assert h is not None  # a problem's G comes with its h
+            row = tolerance * (1 + h.abs() + (G[0] if G.stride(0) == 0 else G).abs().sum(-1))
+        return cls(bound, tolerance * (1 + g.abs().amax(-1, keepdim=True)), row)
+
+    def pick(self, subjects: torch.Tensor | None) -> "Tolerances":
+        """The tolerances of the subjects [k] (all without)."""
+        return Tolerances(*(select(subjects, t) for t in self))
+
+
+def any_last(mask: torch.Tensor) -> torch.Tensor:
+    """mask [..., k] bool -> [...]: any entry True. On its bytes: a bool reduction is several
+    times slower on a CPU."""
+    return mask.view(torch.uint8).amax(-1) != 0
 
 
 @dataclass
@@ -50,7 +81,7 @@ def active_set(H, problem: QPProblem, sets: Sets, budget: int, tolerance: float)
     After the first iteration only the subjects not yet done are carried on (gathered into a
     smaller batch): in tracking most subjects keep their active set and finish at once."""
     g, G = problem.g, problem.G
-    tolerance = max(tolerance, 100 * torch.finfo(g.dtype).eps)  # float32 cannot resolve 1e-12
+    tolerances = Tolerances.of(problem, max(tolerance, 100 * torch.finfo(g.dtype).eps))  # float32 cannot resolve 1e-12
     upper, lower, rows = sets
     done = torch.zeros(g.shape[0], dtype=torch.bool, device=g.device)
     x, nu = torch.zeros_like(g), torch.zeros_like(g)
@@ -59,10 +90,10 @@ def active_set(H, problem: QPProblem, sets: Sets, budget: int, tolerance: float)
     iteration, row_steps = 0, 0
     for iteration in range(1, budget + 1):  # noqa: B007  (the count is returned)
         pick = functools.partial(select, live)
-        u, l, r = pick(upper), pick(lower), pick(rows)
-        x_new, nu_new, eta_new, new_r, rows_done, steps = solve_on(sub_H, sub, u, l, r, tolerance)
+        u, l, r, tol = pick(upper), pick(lower), pick(rows), tolerances.pick(live)
+        x_new, nu_new, eta_new, new_r, rows_done, steps = solve_on(sub_H, sub, u, l, r, tol)
         row_steps += steps
-        new_u, new_l, same = next_bounds(sub, x_new, nu_new, u, l, tolerance)
+        new_u, new_l, same = next_bounds(sub, x_new, nu_new, u, l, tol)
         same &= rows_done
         if live is None:
             x, nu, eta, upper, lower, rows, done = x_new, nu_new, eta_new, new_u, new_l, new_r, same
@@ -79,7 +110,7 @@ def active_set(H, problem: QPProblem, sets: Sets, budget: int, tolerance: float)
     return ActiveSetResult(x, nu, eta, (upper, lower, rows), done, iteration, row_steps)
 
 
-def solve_on(H, problem: QPProblem, upper, lower, rows, tolerance: float):
+def solve_on(H, problem: QPProblem, upper, lower, rows, tol: Tolerances):
     """The bounds `upper`, `lower` [B,N] held, the rows' optimal active set from `rows` [B,m].
     Returns x [B,N], the bound multipliers nu [B,N] (nu > 0 pushes against an upper bound, nu < 0
     against a lower one; 0 on free variables), eta [B,m] and the active rows (None without G),
@@ -94,13 +125,12 @@ def solve_on(H, problem: QPProblem, upper, lower, rows, tolerance: float):
         assert h is not None and rows is not None  # a problem's G comes with its h, and the sets with rows
         eta = torch.zeros_like(h)
         violation = row_values(G, x) - h  # at eta = 0
-        slack_tolerance = tolerance * (1 + h.abs() + G.abs().sum(-1))
         # only the subjects with an active or a violated row enter the rows' Schur complement
-        involved = (rows.any(-1) | (violation > slack_tolerance).any(-1)).nonzero().flatten()
+        involved = any_last(rows | (violation > tol.row)).nonzero().flatten()
         if len(involved):
             pick = functools.partial(select, involved)
             solved = _with_rows(H.select(involved), factor.select(involved), pick(g), pick(G), pick(h), pick(x),
-                                pick(violation), pick(rows), pick(held), pick(slack_tolerance), tolerance)
+                                pick(violation), pick(rows), pick(held), tol.pick(involved))
             x, eta = x.index_copy(0, involved, solved[0]), eta.index_copy(0, involved, solved[1])
             rows = rows.index_copy(0, involved, solved[2])
             rows_done = rows_done.index_copy(0, involved, solved[3])
@@ -112,7 +142,7 @@ def _bound_multipliers(H, g, G, x, eta, held):
     """-(H x + g + G^T eta) on the held variables, 0 on the free ones. -> [B,N]. Only the subjects
     that hold a bound need the product with H: in tracking, few do."""
     nu = torch.zeros_like(x)
-    holding = held.any(-1).nonzero().flatten()
+    holding = any_last(held).nonzero().flatten()
     if len(holding):
         pick = functools.partial(select, holding)
         gradient = H.select(holding).matvec(pick(x).unsqueeze(-1)).squeeze(-1) + pick(g)
@@ -124,7 +154,7 @@ def _bound_multipliers(H, g, G, x, eta, held):
     return nu
 
 
-def _with_rows(H, factor, g, G, h, x, violation, rows, held, slack_tolerance, tolerance: float):
+def _with_rows(H, factor, g, G, h, x, violation, rows, held, tol: Tolerances):
     """The rows' part for the subjects that have rows to hold: their Schur complement with the
     bounds' factorisation, the optimal active rows in it (`optimal_rows`), and one step of
     iterative refinement (on a nearly singular H the Schur complement is ill-conditioned and the
@@ -133,9 +163,7 @@ def _with_rows(H, factor, g, G, h, x, violation, rows, held, slack_tolerance, to
     Z = factor.solve(G.transpose(1, 2))  # [k,N,m]: H_F^-1 G^T, zero on the held variables
     S = G @ Z
     S = (S + S.transpose(1, 2)) / 2
-    multiplier_tolerance = tolerance * (1 + g.abs().amax(-1, keepdim=True))
-    eta, active, done, steps = optimal_rows(S, violation, rows, slack_tolerance, multiplier_tolerance,
-                                            budget=3 * G.shape[1] + 2)
+    eta, active, done, steps = optimal_rows(S, violation, rows, tol.row, tol.multiplier, budget=3 * G.shape[1] + 2)
     x = x - (Z @ eta.unsqueeze(-1)).squeeze(-1)
     a = active.to(x.dtype)
     free = (~held).to(x.dtype)
@@ -148,17 +176,14 @@ def _with_rows(H, factor, g, G, h, x, violation, rows, held, slack_tolerance, to
     return x + dx - (Z @ d_eta.unsqueeze(-1)).squeeze(-1), eta + d_eta, active, done, steps
 
 
-def next_bounds(problem: QPProblem, x, nu, upper, lower, tolerance: float):
+def next_bounds(problem: QPProblem, x, nu, upper, lower, tol: "Tolerances"):
     """The bounds a solution points to: held bounds whose multiplier has the wrong sign are
-    released, free variables past a bound are held. Returns the new upper [B,N], lower [B,N] and
-    whether nothing changed [B]."""
-    g, lb, ub = problem.g, problem.lb, problem.ub
-    # sizes that make the tolerances relative: bounds, gradient
-    x_tol = tolerance * (1 + torch.where(torch.isfinite(lb), lb.abs(), 0) + torch.where(torch.isfinite(ub), ub.abs(), 0))
-    nu_tol = tolerance * (1 + g.abs().amax(-1, keepdim=True))
-    new_upper = torch.where(upper, nu > -nu_tol, x > ub + x_tol) & torch.isfinite(ub)
-    new_lower = torch.where(lower, nu < nu_tol, x < lb - x_tol) & torch.isfinite(lb) & ~new_upper
-    same = (new_upper == upper).all(-1) & (new_lower == lower).all(-1) & torch.isfinite(x).all(-1)
+    released, free variables past a bound are held (never an infinite one: x is not past it).
+    Returns the new upper [B,N], lower [B,N] and whether nothing changed and x is finite [B]
+    (NaN and Inf propagate through the sum)."""
+    new_upper = torch.where(upper, nu > -tol.multiplier, x > problem.ub + tol.bound)
+    new_lower = torch.where(lower, nu < tol.multiplier, x < problem.lb - tol.bound) & ~new_upper
+    same = ~any_last((new_upper ^ upper) | (new_lower ^ lower)) & torch.isfinite(x.sum(-1))
     return new_upper, new_lower, same
 
 

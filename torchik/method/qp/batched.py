@@ -90,7 +90,7 @@ class BatchedBackend(QPBackend):
             sub_sets = tuple(pick(a, b) for a, b in zip(polish.sets, guess))
             sets = tuple(None if a is None else a.index_copy(0, rest, b) for a, b in zip(sets, sub_sets))  # type: ignore
             done = done.index_copy(0, rest, pol_done | ip_done)
-        solved = done & torch.isfinite(x).all(-1)
+        solved = done & torch.isfinite(x.sum(-1))  # NaN and Inf propagate through the sum
         self._last = sets
         if not bool(solved.all()):
             x = torch.where(solved[:, None], x, clipped_fallback(problem))
