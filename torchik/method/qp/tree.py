@@ -194,7 +194,8 @@ class TreeFactor:
         self.axes = axes
         for start, stop, parents in tree.spans:
             a, S_j, u = axes[start:stop], S[start:stop], self.u[start:stop]  # [m,3,B], [m,3,3,B], [m,3,B]
-            torch.sum(S_j * a[:, None], 2, out=u)
+            column = S_j.unbind(2)  # S_j's columns [m,3,B]: u = S_j a without an [m,3,3,B] product
+            torch.mul(column[0], a[:, 0:1], out=u).addcmul_(column[1], a[:, 1:2]).addcmul_(column[2], a[:, 2:3])
             gain = torch.div(joint_free[start:stop], (a * u).sum(1).add_(joint_diagonal[start:stop]),
                              out=self.gain[start:stop])
             S.index_add_(0, parents, torch.addcmul(S_j, (gain[:, None] * u)[:, :, None], u[:, None], value=-1.0))
