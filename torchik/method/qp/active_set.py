@@ -24,7 +24,7 @@ import torch
 
 from .base import QPProblem
 from .dense import DenseHessian
-from .rows import optimal_rows, row_values
+from .rows import optimal_rows, row_forces, row_values
 from .tree import TreeHessian
 
 Sets = tuple[torch.Tensor, torch.Tensor, "torch.Tensor | None"]  # (upper [B,N], lower [B,N], rows [B,m] or None)
@@ -147,9 +147,7 @@ def _bound_multipliers(H, g, G, x, eta, held):
         pick = functools.partial(select, holding)
         gradient = H.select(holding).matvec(pick(x).unsqueeze(-1)).squeeze(-1) + pick(g)
         if G is not None:
-            sub_G = pick(G)
-            gradient = gradient + (eta.index_select(0, holding) @ sub_G[0] if sub_G.stride(0) == 0 else
-                                   (sub_G.transpose(1, 2) @ eta.index_select(0, holding).unsqueeze(-1)).squeeze(-1))
+            gradient = gradient + row_forces(pick(G), eta.index_select(0, holding))
         nu = nu.index_copy(0, holding, torch.where(pick(held), -gradient, torch.zeros_like(gradient)))
     return nu
 
@@ -161,17 +159,17 @@ def _with_rows(H, factor, g, G, h, x, violation, rows, held, tol: Tolerances):
     first solve leaves a stationarity residual well above rounding).
     Returns x [k,N], eta [k,m], the active rows [k,m], done [k] and the rows' steps."""
     Z = factor.solve(G.transpose(1, 2))  # [k,N,m]: H_F^-1 G^T, zero on the held variables
-    S = G @ Z
+    S = Z.transpose(1, 2) @ G[0].T if G.stride(0) == 0 else G @ Z  # G H_F^-1 G^T = (H_F^-1 G^T)^T G^T
     S = (S + S.transpose(1, 2)) / 2
     eta, active, done, steps = optimal_rows(S, violation, rows, tol.row, tol.multiplier, budget=3 * G.shape[1] + 2)
     x = x - (Z @ eta.unsqueeze(-1)).squeeze(-1)
     a = active.to(x.dtype)
     free = (~held).to(x.dtype)
-    r_x = free * -(H.matvec(x.unsqueeze(-1)).squeeze(-1) + g + (G.transpose(1, 2) @ eta.unsqueeze(-1)).squeeze(-1))
-    r_rows = a * (h - (G @ x.unsqueeze(-1)).squeeze(-1))
+    r_x = free * -(H.matvec(x.unsqueeze(-1)).squeeze(-1) + g + row_forces(G, eta))
+    r_rows = a * (h - row_values(G, x))
     dx = factor.solve(r_x.unsqueeze(-1)).squeeze(-1)
     schur = S * (a[:, :, None] * a[:, None, :]) + torch.diag_embed(1 - a)
-    d_eta = a * torch.cholesky_solve((a * ((G @ dx.unsqueeze(-1)).squeeze(-1) - r_rows)).unsqueeze(-1),
+    d_eta = a * torch.cholesky_solve((a * (row_values(G, dx) - r_rows)).unsqueeze(-1),
                                      torch.linalg.cholesky_ex(schur)[0]).squeeze(-1)
     return x + dx - (Z @ d_eta.unsqueeze(-1)).squeeze(-1), eta + d_eta, active, done, steps
 

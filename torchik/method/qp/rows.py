@@ -31,6 +31,13 @@ def row_values(G: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     return (G @ x.unsqueeze(-1)).squeeze(-1)
 
 
+def row_forces(G: torch.Tensor, eta: torch.Tensor) -> torch.Tensor:
+    """G^T eta for G [B,m,N], eta [B,m] -> [B,N]; one matrix product when G is expanded over the batch."""
+    if G.stride(0) == 0:
+        return eta @ G[0]
+    return (G.transpose(1, 2) @ eta.unsqueeze(-1)).squeeze(-1)
+
+
 def _dependence(dtype) -> float:
     """A row's curvature left by the active rows, relative to its own, below which it depends on them."""
     return max(1e-10, 1e3 * torch.finfo(dtype).eps)

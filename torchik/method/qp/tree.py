@@ -249,7 +249,7 @@ class TreeFactor:
         else:
             omega_rhs = f * omega_rhs
         omega_B = torch.cholesky_solve(omega_rhs, self.base_factor)
-        x = torch.empty_like(r)  # [N,k,B]
+        x = r.new_empty(B, N, k).permute(1, 2, 0)  # [N,k,B] over a contiguous [B,N,k]: what the caller reads
         x[:3] = self.free[:3, None] * r[:3] / self.linear[:, None] + (0 if c is None else c[:3])
         x[3:6] = omega_B.permute(1, 2, 0)
         # root to leaves: each joint's rate from its parent frame's angular velocity
