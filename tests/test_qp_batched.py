@@ -104,12 +104,33 @@ def piqp_trustworthy(problem: QPProblem, solution, x_ref, status) -> torch.Tenso
     return solution.solved & torch.tensor([s == "SOLVED" for s in status]) & (violation <= 1e-10 * bound_scale)
 
 
+def multipliers_unique(problem: QPProblem, x: torch.Tensor, tolerance: float = 1e-6) -> torch.Tensor:
+    """Whether the bounds and rows that x [B,N] touches (to `tolerance`) have linearly independent
+    normals (LICQ): only then are the KKT multipliers, and with them the strictly active set,
+    unique. A state past a coupled limit can pinch a joint between a row and its own bound (row
+    r_shoulder_roll <= h and the rate bound r_shoulder_roll >= lb meeting at one value, or 1e-9
+    apart): any split of the force between the two is optimal, or within the solvers' tolerances,
+    and each solver picks its own. -> [B]"""
+    touched = (x <= problem.lb + tolerance) | (x >= problem.ub - tolerance)
+    normals = torch.diag_embed(touched.to(x.dtype))
+    count = touched.sum(-1)
+    if problem.G is not None:
+        rows = (problem.G @ x[..., None]).squeeze(-1) >= problem.h - tolerance
+        normals = torch.cat((normals, problem.G * rows[..., None]), dim=1)
+        count = count + rows.sum(-1)
+    return torch.linalg.matrix_rank(normals) == count
+
+
 def test_objective_and_strictly_active_set_match_piqp(solved):
     name, problem, solution, (x_ref, z_ref, y_ref, status) = solved
     both = piqp_trustworthy(problem, solution, x_ref, status)
     assert int(both.sum()) >= 0.8 * len(status)
     f, f_ref = objective(problem, solution.x)[both], objective(problem, x_ref)[both]
     assert float(((f - f_ref).abs() / (1 + f_ref.abs())).max()) < 1e-8
+    # the multipliers below only where they are unique (all of the human models' problems)
+    unique = multipliers_unique(problem, solution.x)
+    assert name == "icub" or bool(unique.all())
+    both &= unique
     # a bound clearly active for one solver is active, on the same side, for the other; bounds with
     # multipliers near rounding (weakly active) may go either way
     ours_strong = strictly_active(problem, solution.bound_multipliers, 1e-4)[both]

@@ -20,7 +20,8 @@ def add_parser(subparsers) -> None:
         "bench", help="subject-steps per second, batched and per-subject loops (table and JSON)",
         description=bench.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="examples:\n  torchik bench\n  torchik bench --models human66 --batch 1024 --no-loops\n"
-               "  torchik bench --device cuda --batch 1024 65536 --json gpu.json")
+               "  torchik bench --device cuda --batch 1024 65536 --json gpu.json\n"
+               "  torchik bench --models human66 --batch 1024 --no-loops --profile")
     parser.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS)
     parser.add_argument("--batch", nargs="+", type=int, default=list(bench.BATCHES),
                         help="batch sizes (default 1 64 1024 8192)")
@@ -33,6 +34,9 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--max-steps", type=int, default=50, help="steps per batched measurement, at most (default 50)")
     parser.add_argument("--json", metavar="FILE", help="write the measurements here")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--profile", action="store_true",
+                        help="after the table, the batched step's roofline per model and batch: per phase its time, "
+                             "flops and bytes per subject against this machine's measured peaks (pipelines/roofline.py)")
     parser.set_defaults(run=run)
 
 
@@ -52,10 +56,21 @@ def run(args: argparse.Namespace) -> int:
     device_name = torch.cuda.get_device_name(0) if on_cuda else platform.processor() or platform.machine()
     print(f"torchik bench: {args.dtype}, device {args.device} ({device_name}), {torch.get_num_threads()} CPU threads")
     print(bench.table(results))
+    profiles = []
+    if args.profile:
+        from ..pipelines import roofline
+
+        peaks = roofline.measure_peaks(args.device)
+        for name in args.models:
+            for B in args.batch:
+                profiles.append(roofline.profile(name, B, args.device, dtype, peaks=peaks))
+                print()
+                print(roofline.table(profiles[-1]))
     if args.json:
         info = dict(device=args.device, device_name=device_name, dtype=args.dtype, threads=torch.get_num_threads(),
                     torch=torch.__version__, gain=bench.GAIN, damping=bench.DAMPING, rate_hz=bench.RATE)
         with open(args.json, "w") as f:
-            json.dump(dict(settings=info, results=[asdict(r) for r in results]), f, indent=2)
+            json.dump(dict(settings=info, results=[asdict(r) for r in results], profiles=[asdict(p) for p in profiles]),
+                      f, indent=2)
         print(f"wrote {args.json}")
     return 0

@@ -9,13 +9,19 @@ import torch
 from . import so3
 from .state import State
 
-ROTATION_TOLERANCE = 1e-12  # max |R^T R - I| of a returned base rotation
+ROTATION_TOLERANCE = 1e-12  # max |R^T R - I| of a returned base rotation (float64; see rotation_tolerance)
 LIMIT_TOLERANCE = 1e-6  # rad or m a joint may go further beyond its limit in a step (the QP's tolerance)
 
 
 def _beyond_limits(s: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor) -> torch.Tensor:
     """How far joints s [B,n] are outside [lower, upper] ([n] or [B,n]); 0 inside. [B,n]"""
     return (lower - s).clamp(min=0.0) + (s - upper).clamp(min=0.0)
+
+
+def rotation_tolerance(dtype: torch.dtype) -> float:
+    """ROTATION_TOLERANCE, or 100 roundings of `dtype` where that is coarser (float32: 1.2e-5; an
+    orthonormalised float32 rotation is off by a few 1e-7, and every state would fail 1e-12)."""
+    return max(ROTATION_TOLERANCE, 100 * torch.finfo(dtype).eps)
 
 
 def invariant_measure(state: State, rotation: torch.Tensor, joints_before: torch.Tensor, lower: torch.Tensor,
@@ -28,7 +34,7 @@ def invariant_measure(state: State, rotation: torch.Tensor, joints_before: torch
     deviation = (R.transpose(-1, -2) @ R - so3.identity(R.dtype, R.device)).abs().flatten(1).amax(-1)  # [B]
     outward = _beyond_limits(state.joint_positions, lower, upper) - _beyond_limits(joints_before, lower, upper)  # [B,n]
     furthest = outward.amax(-1) if outward.shape[-1] else torch.zeros_like(deviation)  # [B]
-    measure = torch.maximum(deviation / ROTATION_TOLERANCE, furthest / LIMIT_TOLERANCE)
+    measure = torch.maximum(deviation / rotation_tolerance(R.dtype), furthest / LIMIT_TOLERANCE)
     # alpha 0 keeps NaN and Inf of any value in the state (0 * Inf is NaN)
     values = torch.cat((state.base_position, state.joint_positions, state.velocity), dim=1).sum(-1)
     return torch.add(measure, values, alpha=0.0)  # [B]
@@ -62,6 +68,6 @@ def _scales(n: int, N: int, dtype: torch.dtype, device: torch.device) -> torch.T
     0 for the base position and the velocity (which need only be finite). Made once per shape."""
     key = (n, N, dtype, device)
     if key not in _SCALES:
-        _SCALES[key] = torch.cat((torch.full((9,), 1.0 / ROTATION_TOLERANCE), torch.full((n,), 1.0 / LIMIT_TOLERANCE),
+        _SCALES[key] = torch.cat((torch.full((9,), 1.0 / rotation_tolerance(dtype)), torch.full((n,), 1.0 / LIMIT_TOLERANCE),
                                   torch.zeros(3 + N))).to(dtype=dtype, device=device)
     return _SCALES[key]

@@ -20,6 +20,31 @@ def identity(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     return _IDENTITY[key]
 
 
+def sum3(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
+    """x summed over a dimension of size 3, as two additions of its slices: torch's CPU reduction
+    over one innermost dimension this short is an order of magnitude slower (2 ms against 0.1 ms
+    for [1024,23,3,3]). [..., 3, ...] -> [..., ...]"""
+    a, b, c = x.unbind(dim)
+    return (a + b).add_(c)
+
+
+def gram_deviation(R: torch.Tensor) -> torch.Tensor:
+    """The six distinct entries of R^T R - I: its diagonal, then the (0,1), (0,2), (1,2) entries,
+    from dot products of R's columns (a batched product of 3x3 matrices costs twice as much on a
+    CPU). R: [..., 3, 3] -> [..., 6]"""
+    c0, c1, c2 = R.unbind(-1)
+    dots = [sum3(a * b) for a, b in ((c0, c0), (c1, c1), (c2, c2), (c0, c1), (c0, c2), (c1, c2))]
+    deviation = torch.stack(dots, -1)
+    deviation[..., :3] -= 1.0
+    return deviation
+
+
+def gram_deviation_norm(deviation: torch.Tensor) -> torch.Tensor:
+    """||R^T R - I|| (Frobenius) from `gram_deviation`'s six entries [..., 6] -> [...]"""
+    square = deviation.square()
+    return (square[..., :3].sum(-1) + 2 * square[..., 3:].sum(-1)).sqrt()
+
+
 def hat_basis(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     """[3,9]: row i is hat(e_i) flattened, so that hat(w).flatten() = w @ basis (exact: one term each)."""
     key = (dtype, device)

@@ -45,7 +45,9 @@ def step_kinematics(model: KinematicModel, structure: StepStructure, batch: Batc
             both = model.rotations(torch.cat((R_B, at.base_rotation)),
                                    torch.cat((q.joint_positions, at.joint_positions)), links, joint_axes=True)
             return StepKinematics(both.rotation[:B], p_hat, given(both.joint_axes)[B:], None)
-        mid_axes = model.rotations(at.base_rotation, at.joint_positions, links, joint_axes=True).joint_axes
+        # the axes alone: the mid-step call selects one link (its rotations are not used)
+        mid_axes = model.rotations(at.base_rotation, at.joint_positions, structure.base_selection,
+                                   joint_axes=True).joint_axes
         return StepKinematics(model.rotations(R_B, q.joint_positions, links).rotation, p_hat, given(mid_axes), None)
     # position targets off the base need link positions and their Jacobians
     jacobian, jacobian_links = structure.task.position is not None, structure.task.position

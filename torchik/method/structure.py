@@ -25,7 +25,8 @@ class StepStructure:
     task: the normal equations' structure; tree: the joints' tree for the structured QP solve (None
     when a position target is off the base link, or the model has no joint); rotations_only: the
     step needs link rotations and joint axes only (the paper's targets: orientations, and the base
-    position); position_gain [n_p,1], orientation_gain [n_o,1]: K per target.
+    position); position_gain [n_p,1], orientation_gain [n_o,1]: K per target; base_selection: the
+    base link alone (a kinematics call that only needs the joint axes).
     """
 
     selection: LinkSelection
@@ -37,6 +38,7 @@ class StepStructure:
     rotations_only: bool
     position_gain: torch.Tensor
     orientation_gain: torch.Tensor
+    base_selection: LinkSelection
 
     @classmethod
     def build(cls, model: KinematicModel, orientation_links: tuple[str, ...], position_links: tuple[str, ...],
@@ -61,7 +63,8 @@ class StepStructure:
         return cls(selection, model.select(orientation_links) if orientation_links else None,
                    torch.tensor([index[n] for n in position_links], **long),
                    torch.tensor([index[n] for n in orientation_links], **long), task, tree,
-                   task.position is None and len(orientation_links) > 0, *gains)
+                   task.position is None and len(orientation_links) > 0, gains[0], gains[1],
+                   model.select((model.base_link,)))
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ from typing import Any, NamedTuple
 import torch
 
 from .kinematics import KinematicModel, LinkSelection
+from .so3 import sum3
 
 
 class Objective(NamedTuple):
@@ -103,7 +104,11 @@ def normal_equations(structure: TaskStructure, joint_axes: torch.Tensor, positio
         w = torch.cat((v_position.new_ones(v_position.shape[:2]) if w_position is None else w_position,
                        v_orientation.new_ones(v_orientation.shape[:2]) if w_orientation is None else w_orientation), 1)
         v = w[..., None] * v
-    g = -(phi * (M.T @ v)).sum(-1)
+    # sum_t M_ti v_t as one matrix product over the batch ([N,n_t] @ [n_t,B*3]), then the dot
+    # product with phi_i by slices (a reduction over a last dimension of 3 is slow on a CPU)
+    B_v, n_t = v.shape[:2]
+    moved = (M.T @ v.transpose(0, 1).reshape(n_t, B_v * 3)).view(-1, B_v, 3).transpose(0, 1)  # [B,N,3]
+    g = -sum3(phi * moved)
     H: torch.Tensor | None = None
     if hessian:
         pairs = (M.T * w[:, None, :]) @ M if weighted else structure.target_pairs  # [B,N,N] or [N,N]

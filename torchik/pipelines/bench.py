@@ -76,22 +76,11 @@ def bench_batched(name: str, batch: int, device: str, dtype, min_seconds: float,
                   warmup: int = 5) -> Measurement:
     """The tracker's whole step for `batch` subjects at once; timed over up to `max_steps` steps
     or `min_seconds`, whichever comes first, after `warmup` steps."""
-    from ..method.models import TRACKED_LINKS, load_model
-    from ..method.tracker import DynamicalIK
-
-    model, links = load_model(name, dtype=dtype, device=device), TRACKED_LINKS[name]
     # enough steps for min_seconds at a first guess of the speed (1e5 subject-steps/s), at most max_steps
     max_steps = max(3, min(max_steps, int(1e5 * min_seconds / batch) + 1))
-    motion = _motion(model, batch, warmup + max_steps)
-    sequence = _targets(model, motion, links, device)
-    tracker = DynamicalIK(model, links, position_gain=GAIN, orientation_gain=GAIN, dt=1 / RATE, damping=DAMPING,
-                          backend="batched")
-    state = motion.state(0)
-    tracker.reset(type(state)(*(x.to(device) for x in vars(state).values())), batch=batch)
+    tracker, sequence = prepared_tracker(name, batch, device, dtype, warmup + max_steps, warmup)
     solver = tracker.backend
     assert isinstance(solver, BatchedBackend)  # asked for: its iterations are measured
-    for k in range(warmup):
-        tracker.step(sequence[k])
     _synchronize(device)
     iterations, rescued, active, unsolved, steps = 0, 0, 0.0, 0, 0
     start = time.perf_counter()
@@ -109,6 +98,24 @@ def bench_batched(name: str, batch: int, device: str, dtype, min_seconds: float,
     return Measurement(name, "torchik batched", batch, steps, seconds, batch * steps / seconds, active / steps,
                        iterations / steps, rescued / (batch * steps), unsolved / (batch * steps),
                        float(diagnostics.mnte.max()))
+
+
+def prepared_tracker(name: str, batch: int, device: str, dtype, steps: int, warmup: int):
+    """The batched tracker of model `name` for `batch` subjects of the walking motion, after
+    `warmup` of its `steps` steps, and the motion's targets."""
+    from ..method.models import TRACKED_LINKS, load_model
+    from ..method.tracker import DynamicalIK
+
+    model, links = load_model(name, dtype=dtype, device=device), TRACKED_LINKS[name]
+    motion = _motion(model, batch, steps)
+    sequence = _targets(model, motion, links, device)
+    tracker = DynamicalIK(model, links, position_gain=GAIN, orientation_gain=GAIN, dt=1 / RATE, damping=DAMPING,
+                          backend="batched")
+    state = motion.state(0)
+    tracker.reset(type(state)(*(x.to(device) for x in vars(state).values())), batch=batch)
+    for k in range(warmup):
+        tracker.step(sequence[k])
+    return tracker, sequence
 
 
 def _targets(model, motion, links, device: str):

@@ -51,7 +51,7 @@ def frame_poses(t: TreeTensors, p_B, R_B, s) -> tuple[torch.Tensor, torch.Tensor
     sin = torch.sin(angle)[:, None, None, :]
     one_minus_cos = (1.0 - torch.cos(angle))[:, None, None, :]
     # R_parent->frame = R_off exp(hat(axis) angle) = R_off + sin R_off K + (1 - cos) R_off K^2
-    R_local = (g.offset_rotation + sin * g.rotation_sin_term).addcmul_(one_minus_cos, g.rotation_cos_term)
+    R_local = torch.addcmul(g.offset_rotation, sin, g.rotation_sin_term).addcmul_(one_minus_cos, g.rotation_cos_term)
     p_local = g.offset_position.expand(-1, -1, B)
     R_base = R_B.permute(1, 2, 0)  # [3,3,B]
     if B <= SMALL_BATCH and t.jumps and not rotations_only:

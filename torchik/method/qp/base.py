@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import torch
 
+from .rows import row_values
 from .tree import TreeHessian
 
 
@@ -48,7 +49,7 @@ class QPProblem:
         count = ((x <= self.lb + tolerance) | (x >= self.ub - tolerance)).sum(-1)
         if (rows := self.rows) is not None:
             G, h = rows
-            count = count + ((G @ x.unsqueeze(-1)).squeeze(-1) >= h - tolerance).sum(-1)
+            count = count + (row_values(G, x) >= h - tolerance).sum(-1)
         return count
 
 
@@ -93,7 +94,7 @@ def unconstrained_if_feasible(problem: QPProblem) -> tuple[torch.Tensor, torch.T
     feasible = (info == 0) & (x.clamp(problem.lb, problem.ub) - x == 0).all(-1)
     if (rows := problem.rows) is not None:
         G, h = rows
-        feasible &= ((G @ x.unsqueeze(-1)).squeeze(-1) <= h).all(-1)
+        feasible &= (row_values(G, x) <= h).all(-1)
     return x, feasible
 
 
@@ -112,7 +113,7 @@ def clipped_fallback(problem: QPProblem) -> torch.Tensor:
     x = torch.minimum(torch.maximum(x, problem.lb), problem.ub)
     if (rows := problem.rows) is not None:
         G, h = rows
-        Gx = (G @ x.unsqueeze(-1)).squeeze(-1)
+        Gx = row_values(G, x)
         # largest alpha in [0, 1] with alpha G x <= h on every row where G x > h
         tiny = torch.finfo(Gx.dtype).tiny
         ratio = torch.where(Gx > h, h.clamp(min=0) / Gx.clamp(min=tiny), torch.ones_like(Gx))

@@ -20,6 +20,10 @@ class DenseHessian:
         """H + diag(extra) restricted to the `free` variables [B,N] (bool), Cholesky-factorised."""
         return DenseFactor(self.H if extra is None else self.H + torch.diag_embed(extra), free)
 
+    def select(self, subjects: torch.Tensor) -> "DenseHessian":
+        """The Hessians of the subjects [k] (indices)."""
+        return DenseHessian(self.H.index_select(0, subjects))
+
 
 class DenseFactor:
     def __init__(self, H: torch.Tensor, free: torch.Tensor):
@@ -27,6 +31,13 @@ class DenseFactor:
         f = self.free
         reduced = H * (f[:, :, None] * f[:, None, :]) + torch.diag_embed(1 - f)
         self.L, self.info = torch.linalg.cholesky_ex(reduced)
+
+    def select(self, subjects: torch.Tensor) -> "DenseFactor":
+        """The factorisation of the subjects [k] (indices), without factorising again."""
+        picked = object.__new__(DenseFactor)
+        picked.H, picked.free = self.H.index_select(0, subjects), self.free.index_select(0, subjects)
+        picked.L, picked.info = self.L.index_select(0, subjects), self.info.index_select(0, subjects)
+        return picked
 
     def solve(self, rhs: torch.Tensor, held: torch.Tensor | None = None) -> torch.Tensor:
         """x with (H x)_i = rhs_i on the free variables, x_i = held_i on the others. [B,N,k] -> [B,N,k]."""

@@ -33,14 +33,21 @@ from ..kinematics import KinematicModel
 class JointTree:
     """The joints' tree compiled for a model and its orientation targets.
 
-    levels: per height (leaves first) the joint indices [m] and their parents [m] (n: the base);
-    attach: [n_o, n+1] 1 where target t's angular velocity is that of joint j's frame (column n:
+    order: [n] the joints leaves first, one tree level (height) after another (node_order [n+1]: the
+    base after them); position: [n] where
+    each joint is in that order; spans: per level (start, stop, parents): its joints are order[start:stop]
+    and their parents' positions in the order are parents [m] (n: the base). In this order a level's
+    joints are one contiguous slice of every per-joint tensor, so the elimination reads them without
+    gathering; attach: [n_o, n+1] 1 where target t's angular velocity is that of joint j's frame (column n:
     the base); descendants: [n+1, n] 1 where joint k lies on the path to j (column of the base: all
     zero), for H's dense form.
     """
 
     n: int
-    levels: tuple[tuple[torch.Tensor, torch.Tensor], ...]
+    order: torch.Tensor
+    node_order: torch.Tensor
+    position: torch.Tensor
+    spans: tuple[tuple[int, int, torch.Tensor], ...]
     attach: torch.Tensor
     ancestors: torch.Tensor
 
@@ -53,10 +60,13 @@ class JointTree:
             if parents[j] < n:
                 height[parents[j]] = max(height[parents[j]], height[j] + 1)
         long: dict[str, Any] = dict(dtype=torch.long, device=model.device)
-        levels = []
+        order = sorted(range(n), key=lambda j: (height[j], j))
+        position = {j: i for i, j in enumerate(order)} | {n: n}
+        spans, start = [], 0
         for h in range(max(height) + 1 if n else 0):
-            members = [j for j in range(n) if height[j] == h]
-            levels.append((torch.tensor(members, **long), torch.tensor([parents[j] for j in members], **long)))
+            members = [j for j in order if height[j] == h]
+            spans.append((start, start + len(members), torch.tensor([position[parents[j]] for j in members], **long)))
+            start += len(members)
         above = torch.zeros(n + 1, n, dtype=model.dtype, device=model.device)
         for j in range(n):
             k = j
@@ -74,7 +84,8 @@ class JointTree:
             node = torch.full((mask.shape[0],), n, dtype=torch.long, device=model.device)
         attach = torch.zeros(mask.shape[0], n + 1, dtype=model.dtype, device=model.device)
         attach[torch.arange(mask.shape[0]), node] = 1.0
-        return cls(n, tuple(levels), attach, above)
+        return cls(n, torch.tensor(order, **long), torch.tensor(order + [n], **long),
+                   torch.tensor([position[j] for j in range(n)], **long), tuple(spans), attach, above)
 
 
 def _depth(parents, j, n) -> int:
@@ -151,33 +162,43 @@ class TreeHessian:
         held at given values in `TreeFactor.solve`. extra: [B,N] or None."""
         return TreeFactor(self, free, extra)
 
+    def select(self, subjects: torch.Tensor) -> "TreeHessian":
+        """The Hessians of the subjects [k] (indices)."""
+        pick = lambda t: t.index_select(0, subjects)  # noqa: E731
+        return TreeHessian(self.tree, pick(self.axes), pick(self.node_weight), pick(self.position_weight), self.damping)
+
 
 class TreeFactor:
     """H restricted to the free variables, factorised leaves first (see the module's docstring).
 
-    Internally batch-last ([joint, ..., B]): every level's work is then a few elementwise
-    operations on contiguous rows, and gathering a level's joints copies whole rows."""
+    Internally batch-last ([joint, ..., B]) and in the tree's level order (`JointTree.order`):
+    every level's work is then a few elementwise operations on one contiguous slice of rows."""
 
     def __init__(self, hessian: TreeHessian, free: torch.Tensor, extra: torch.Tensor | None):
         tree = hessian.tree
-        axes = hessian.axes.permute(1, 2, 0).contiguous()  # [n,3,B]
-        n, B = axes.shape[0], axes.shape[2]
-        dtype = axes.dtype
+        n, B = hessian.axes.shape[1], hessian.axes.shape[0]
+        dtype = hessian.axes.dtype
+        self.tree = tree
         self.free = free.to(dtype).T.contiguous()  # [N,B]
-        diagonal = torch.full((6 + n, B), hessian.damping, dtype=dtype, device=axes.device)
+        diagonal = torch.full((6 + n, B), hessian.damping, dtype=dtype, device=free.device)
         if extra is not None:
-            diagonal = diagonal + extra.T
-        eye = torch.eye(3, dtype=dtype, device=axes.device)[:, :, None]
-        S = hessian.node_weight.T[:, None, None, :] * eye  # [n+1,3,3,B]
-        joint_free, joint_diagonal = self.free[6:], diagonal[6:]
-        self.steps = []
-        for joints, parents in tree.levels:
-            a = axes[joints]  # [m,3,B]
-            S_j = S[joints]  # [m,3,3,B]
-            u = (S_j * a[:, None]).sum(2)
-            gain = joint_free[joints] / ((a * u).sum(1) + joint_diagonal[joints])  # [m,B]; 0: held, not eliminated
-            S.index_add_(0, parents, S_j - gain[:, None, None] * (u[:, :, None] * u[:, None, :]))
-            self.steps.append((joints, parents, a, u, gain, 1 - joint_free[joints]))
+            diagonal.add_(extra.T)  # in place: the sum would take extra.T's transposed layout
+        # per joint, in level order (index_select writes contiguous rows)
+        axes = hessian.axes.index_select(1, tree.order).permute(1, 2, 0).contiguous()  # [n,3,B]
+        joint_free = self.free[6:].index_select(0, tree.order)
+        joint_diagonal = diagonal[6:].index_select(0, tree.order)
+        weight = hessian.node_weight.T.index_select(0, tree.node_order)  # [n+1,B], the base last
+        S = weight[:, None, None, :] * torch.eye(3, dtype=dtype, device=free.device)[:, :, None]  # [n+1,3,3,B]
+        self.gain = torch.empty(n, B, dtype=dtype, device=free.device)  # 0: held, not eliminated
+        self.u = torch.empty(n, 3, B, dtype=dtype, device=free.device)  # S_j a_j
+        self.axes = axes
+        for start, stop, parents in tree.spans:
+            a, S_j, u = axes[start:stop], S[start:stop], self.u[start:stop]  # [m,3,B], [m,3,3,B], [m,3,B]
+            column = S_j.unbind(2)  # S_j's columns [m,3,B]: u = S_j a without an [m,3,3,B] product
+            torch.mul(column[0], a[:, 0:1], out=u).addcmul_(column[1], a[:, 1:2]).addcmul_(column[2], a[:, 2:3])
+            gain = torch.div(joint_free[start:stop], (a * u).sum(1).add_(joint_diagonal[start:stop]),
+                             out=self.gain[start:stop])
+            S.index_add_(0, parents, torch.addcmul(S_j, (gain[:, None] * u)[:, :, None], u[:, None], value=-1.0))
         # the base: omega_B's 3x3 block and p_dot_B's diagonal, held components replaced by identity
         f = self.free[3:6].T  # [B,3]
         self.base_weight = S[n].permute(2, 0, 1)  # [B,3,3]
@@ -188,37 +209,57 @@ class TreeFactor:
         self.base_factor = torch.linalg.cholesky_ex(base)[0]
         self.linear = (hessian.position_weight[None, :] + diagonal[:3])  # [3,B]
 
+    def select(self, subjects: torch.Tensor) -> "TreeFactor":
+        """The factorisation of the subjects [k] (indices), without factorising again."""
+        last = lambda t: t.index_select(-1, subjects)  # noqa: E731  (batch-last tensors)
+        picked = object.__new__(TreeFactor)
+        picked.tree = self.tree
+        picked.free, picked.linear, picked.gain, picked.u, picked.axes = (
+            last(self.free), last(self.linear), last(self.gain), last(self.u), last(self.axes))
+        picked.base_weight = self.base_weight.index_select(0, subjects)
+        picked.base_factor = self.base_factor.index_select(0, subjects)
+        return picked
+
     def solve(self, rhs: torch.Tensor, held: torch.Tensor | None = None) -> torch.Tensor:
         """x with (H x)_i = rhs_i on the free variables and x_i = held_i on the others.
         rhs, held: [B,N,k] (held None: zeros) -> x [B,N,k]."""
+        tree = self.tree
         B, N, k = rhs.shape
         n = N - 6
         r = rhs.permute(1, 2, 0)  # [N,k,B]
-        c = torch.zeros_like(r) if held is None else held.permute(1, 2, 0) * (1 - self.free[:, None])
-        # leaves to root: y_j, the linear term each subtree passes to its parent's frame
+        c = None if held is None else held.permute(1, 2, 0) * (1 - self.free[:, None])
+        # leaves to root, in level order: y_j, the linear term each subtree passes to its parent's frame
+        r_joint = r[6:].index_select(0, tree.order)
+        values = torch.empty_like(r_joint)
+        c_joint = None if c is None else c[6:].index_select(0, tree.order)
         y = r.new_zeros(n + 1, 3, k, B)
-        values = []
-        r_joint, c_joint = r[6:], c[6:]
-        for joints, parents, a, u, gain, _held_here in self.steps:
-            y_j = y[joints]  # [m,3,k,B]
-            beta = r_joint[joints] + (a[:, :, None] * y_j).sum(1)  # [m,k,B]
-            value = gain[:, None] * beta + c_joint[joints]
-            values.append(value)
-            y.index_add_(0, parents, y_j - u[:, :, None] * value[:, None])
+        a3, u3, gain2 = self.axes[:, :, None], self.u[:, :, None], self.gain[:, None]  # [n,3,1,B], [n,3,1,B], [n,1,B]
+        for start, stop, parents in tree.spans:
+            y_j = y[start:stop]  # [m,3,k,B]
+            beta = (a3[start:stop] * y_j).sum(1).add_(r_joint[start:stop])  # [m,k,B]
+            value = torch.mul(gain2[start:stop], beta, out=values[start:stop])
+            if c_joint is not None:
+                value.add_(c_joint[start:stop])
+            y.index_add_(0, parents, torch.addcmul(y_j, u3[start:stop], value[:, None], value=-1.0))
         f = self.free[3:6].T[..., None]  # [B,3,1]
-        c_B = c[3:6].permute(2, 0, 1)  # [B,3,k]
-        omega_B = torch.cholesky_solve(f * (r[3:6].permute(2, 0, 1) + y[n].permute(2, 0, 1) - self.base_weight @ c_B) + c_B,
-                                       self.base_factor)
-        x = torch.empty_like(r)  # [N,k,B]
-        x[:3] = self.free[:3, None] * r[:3] / self.linear[:, None] + c[:3]
+        c_B = None if c is None else c[3:6].permute(2, 0, 1)  # [B,3,k]
+        omega_rhs = r[3:6].permute(2, 0, 1) + y[n].permute(2, 0, 1)
+        if c_B is not None:
+            omega_rhs = f * (omega_rhs - self.base_weight @ c_B) + c_B
+        else:
+            omega_rhs = f * omega_rhs
+        omega_B = torch.cholesky_solve(omega_rhs, self.base_factor)
+        x = r.new_empty(B, N, k).permute(1, 2, 0)  # [N,k,B] over a contiguous [B,N,k]: what the caller reads
+        x[:3] = self.free[:3, None] * r[:3] / self.linear[:, None] + (0 if c is None else c[:3])
         x[3:6] = omega_B.permute(1, 2, 0)
         # root to leaves: each joint's rate from its parent frame's angular velocity
         omega = r.new_empty(n + 1, 3, k, B)
         omega[n] = x[3:6]
-        x_joint = x[6:]
-        for (joints, parents, a, u, gain, _held_here), value in zip(reversed(self.steps), reversed(values)):
-            omega_p = omega[parents]
-            rate = value - gain[:, None] * (u[:, :, None] * omega_p).sum(1)  # [m,k,B]
-            x_joint[joints] = rate
-            omega[joints] = omega_p + a[:, :, None] * rate[:, None]
+        rates = torch.empty_like(values)
+        for start, stop, parents in reversed(tree.spans):
+            omega_p = omega.index_select(0, parents)
+            rate = torch.addcmul(values[start:stop], gain2[start:stop], (u3[start:stop] * omega_p).sum(1), value=-1.0,
+                                 out=rates[start:stop])
+            torch.addcmul(omega_p, a3[start:stop], rate[:, None], out=omega[start:stop])
+        x[6:] = rates.index_select(0, tree.position)
         return x.permute(2, 0, 1)
