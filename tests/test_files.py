@@ -1,8 +1,12 @@
 """io/files: outputs are replaced whole, and the .part files a killed process left are removed."""
 
+import os
 import subprocess
 import sys
 
+import pytest
+
+from torchik.errors import InputError
 from torchik.io.files import write_json
 
 
@@ -19,3 +23,22 @@ def test_a_part_file_of_a_dead_process_is_removed_on_the_next_write_and_a_live_o
     finally:
         alive.kill()
     assert (tmp_path / "report.json").read_text() == '{\n  "a": 1\n}\n'
+
+
+@pytest.mark.parametrize("make", ["fifo", "symlink", "folder"])
+def test_the_library_never_replaces_what_is_not_a_regular_file(tmp_path, make):
+    """Whatever calls write_json (an experiment's --json, a library user), a FIFO, a link or a folder
+    at the output path is refused and left as it was; the CLI's check says so earlier."""
+    target = tmp_path / "kept.json"
+    target.write_text("{}")
+    path = tmp_path / "out.json"
+    if make == "fifo":
+        os.mkfifo(path)
+    elif make == "symlink":
+        path.symlink_to(target)
+    else:
+        path.mkdir()
+    with pytest.raises(InputError, match="which an output would replace"):
+        write_json({"a": 1}, path)
+    assert target.read_text() == "{}" and (path.is_symlink() or not path.is_file())
+    assert not list(tmp_path.glob(".*.part"))

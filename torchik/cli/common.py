@@ -7,10 +7,10 @@ import argparse
 import math
 import os
 import signal
-import stat
 from pathlib import Path
 
 from ..errors import InputError
+from ..io.files import file_kind, is_replaceable
 
 
 class Parser(argparse.ArgumentParser):
@@ -56,8 +56,8 @@ def check_outputs(paths, force: bool, inputs=()) -> None:
     `inputs`, or whose folder does not exist or cannot be written. '-' (standard output) passes."""
     sources = {Path(p).resolve() for p in inputs if p}
     for path in (Path(p) for p in paths if p and p != "-"):
-        if path.is_symlink() or (path.exists() and not path.is_file()):
-            raise InputError(f"{path} is {_kind(path)}, which an output would replace; give a regular file's name"
+        if not is_replaceable(path):
+            raise InputError(f"{path} is {file_kind(path)}, which an output would replace; give a regular file's name"
                              " (or - for standard output where the option takes it)")
         if path.resolve() in sources:
             raise InputError(f"{path} is also an input; write the output to another file")
@@ -67,13 +67,6 @@ def check_outputs(paths, force: bool, inputs=()) -> None:
             raise InputError(f"{path}: no folder {path.parent} to write into; create it first")
         if not os.access(path.parent, os.W_OK | os.X_OK):
             raise InputError(f"{path}: the folder {path.parent} is not writable")
-
-
-def _kind(path: Path) -> str:
-    mode = path.lstat().st_mode
-    kinds = ((stat.S_ISLNK, "a symbolic link"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"),
-             (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISDIR, "a folder"))
-    return next((name for test, name in kinds if test(mode)), "not a regular file")
 
 
 class Terminated(KeyboardInterrupt):

@@ -5,8 +5,11 @@ from __future__ import annotations
 import glob
 import json
 import os
+import stat
 from contextlib import contextmanager
 from pathlib import Path
+
+from ..errors import InputError
 
 
 class PartFile:
@@ -16,6 +19,10 @@ class PartFile:
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
+        if not is_replaceable(self.path):
+            # the commit's rename would destroy it (a device node, a FIFO a reader waits on, a link's target)
+            raise InputError(f"{self.path} is {file_kind(self.path)}, which an output would replace; "
+                             "give a regular file's name")
         _remove_orphans(self.path)
         self.part = self.path.with_name(f".{self.path.name}.{os.getpid()}.part")
 
@@ -31,6 +38,19 @@ class PartFile:
 
     def __exit__(self, *exc) -> None:
         self.discard()
+
+
+def is_replaceable(path: Path) -> bool:
+    """True for a path that is absent or a regular file (not a link, FIFO, socket, device or folder)."""
+    return not path.is_symlink() and (not path.exists() or path.is_file())
+
+
+def file_kind(path: Path) -> str:
+    """What a path that is not a regular file is, in words ("a FIFO", "a character device", ...)."""
+    mode = path.lstat().st_mode
+    kinds = ((stat.S_ISLNK, "a symbolic link"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"),
+             (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISDIR, "a folder"))
+    return next((name for test, name in kinds if test(mode)), "not a regular file")
 
 
 @contextmanager
