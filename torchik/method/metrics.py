@@ -13,6 +13,7 @@ from __future__ import annotations
 import torch
 
 from .residual import orientation_residual
+from .so3 import sum3
 
 
 def orientation_error(R_target: torch.Tensor, R_estimate: torch.Tensor,
@@ -31,7 +32,7 @@ def orientation_error(R_target: torch.Tensor, R_estimate: torch.Tensor,
     one_plus_cos = (R_estimate * R_target).sum((-1, -2)).add_(1.0).mul_(0.5)
     if residual is None:
         residual = orientation_residual(R_target, R_estimate)
-    sin_squared = residual.square().sum(-1)
+    sin_squared = sum3(residual.square())
     # where cos <= 0 the quotient (maybe 0/0) is not used
     return torch.where(one_plus_cos > 1.0, sin_squared / one_plus_cos, 2.0 - one_plus_cos)
 

@@ -73,9 +73,10 @@ def check_targets(targets: Targets, n_position: int, n_orientation: int, dtype: 
 
 def _worst(targets: Targets) -> tuple[torch.Tensor, torch.Tensor]:
     """The largest deviation of a target rotation from orthonormality, NaN if any target is not
-    finite (NaN and Inf propagate through the sums), and the deviations R^T R - I [B,n_o,3,3]."""
+    finite (NaN and Inf propagate through the sums), and the deviations R^T R - I
+    (`so3.gram_deviation`: its six distinct entries [B,n_o,6])."""
     R = targets.rotation
-    deviation = R.transpose(-1, -2) @ R - so3.identity(R.dtype, R.device)
+    deviation = so3.gram_deviation(R)
     largest = deviation.abs().amax() if R.shape[1] else R.new_zeros(())
     # alpha 0 keeps NaN and Inf (0 * Inf is NaN); a finite sum that overflows only takes the slow path
     values = torch.cat((targets.position, targets.linear_velocity, targets.angular_velocity), 1).sum()
@@ -135,11 +136,11 @@ def clean_targets(targets: Targets, project_tolerance: float = PROJECT_TOLERANCE
         rotation = torch.where(o_ok[..., None, None], rotation, eye)
         angular_velocity = torch.where(o_ok[..., None], angular_velocity, 0.0)
         all_valid = bool(p_ok.all()) and bool(o_ok.all())
-        deviation = rotation.transpose(-1, -2) @ rotation - eye
+        deviation = so3.gram_deviation(rotation)
         worst = float(deviation.abs().max()) if n_o else 0.0
     projected = _constant((B,), 0, position.device)
     if n_o and worst > orthonormal_tolerance / 3:
-        error = deviation.flatten(-2).norm(dim=-1)  # [B,n_o]
+        error = so3.gram_deviation_norm(deviation)  # [B,n_o]
         far = error > project_tolerance
         if bool(far.any()):
             b, i = (int(x) for x in far.nonzero()[0])
