@@ -43,14 +43,13 @@ from ..io.files import PartFile
 from ..method.kinematics import KinematicModel
 from ..method.state import TargetSequence, Trajectory
 from .evaluation import time_chunks
+from .rrd_layout import blueprint
 from .visuals import Visual, log_visuals, quaternion_xyzw, visuals  # noqa: F401  (visuals: part of this module's API)
 
 if TYPE_CHECKING:
     import rerun as rr
-    import rerun.blueprint as rrb
 else:
     rr = optional("rerun", "viz", "writing rerun recordings")
-    rrb = optional("rerun.blueprint", "viz", "writing rerun recordings")
 
 GROUPS = {"mnte": "errors", "rmse": "errors", "active_constraints": "solver", "solved": "solver",
           "dropped": "solver", "projected": "solver"}  # per-subject diagnostics [T,B]; others: "diagnostics"
@@ -300,25 +299,6 @@ def _log_subject(rec: rr.RecordingStream, columns: _Columns, i: int, targets: Ta
             values = np.stack((values, np.full(T, c.lower[j]), np.full(T, c.upper[j])), axis=1)
             labels = ["angle", "lower limit", "upper limit"] if static else None
         _send_scalars(rec, f"{root}/joints/{rr.escape_entity_path_part(joint)}", time, values, labels)
-
-
-def blueprint(subjects: Sequence[int], aggregate: bool = False, live: bool = False) -> rrb.Blueprint:
-    """The layout: the 3D view on the left; on the right MNTE and angular velocity RMSE (of the
-    first logged subject, or mean and max over the batch), residuals and joint angles of the first
-    logged subject, solver status and step time; live: the live counters too (/live)."""
-    first = f"/subject/{subjects[0]}"
-    summary = "/aggregate" if aggregate else first
-    plots: list[rrb.Container | rrb.View] = [
-        rrb.Horizontal(rrb.TimeSeriesView(name="MNTE", origin=f"{summary}/errors/mnte"),
-                       rrb.TimeSeriesView(name="angular velocity RMSE (rad/s)", origin=f"{summary}/errors/rmse")),
-        rrb.TimeSeriesView(name=f"residual norms, subject {subjects[0]}", origin=f"{first}/residual"),
-        rrb.TimeSeriesView(name=f"joint angles (rad), subject {subjects[0]}", origin=f"{first}/joints"),
-        rrb.TimeSeriesView(name="solver and step time", contents=[f"{summary}/solver/**", "/timing/**"]),
-    ]
-    if live:
-        plots.append(rrb.TimeSeriesView(name="live counters", origin="/live"))
-    return rrb.Blueprint(rrb.Horizontal(rrb.Spatial3DView(name="estimate and targets", origin="/"), rrb.Vertical(*plots),
-                                        column_shares=[3, 2]))
 
 
 def _check_targets(targets: TargetSequence, T: int, B: int, n_o: int, n_p: int) -> None:
