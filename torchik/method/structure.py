@@ -89,6 +89,15 @@ class BatchSetup:
     structured: bool
     buffers: LinkKinematics | None
 
+    @property
+    def replays_faster(self) -> bool:
+        """Whether the captured step (`captured.py`) is faster than the eager one for this batch. Not on
+        a CPU where the batch solves on the tree: TorchInductor's C++ for the tree's elimination
+        copies the whole [n+1,3,3,B] accumulator at each of its levels (its in-place sums made
+        functional), and the captured step ran 2.5x slower than the eager one for Human66 at
+        B = 1024 (3.6x with dense normal equations), after minutes of compiling."""
+        return not (self.structured and self.base_bounds.lower.device.type == "cpu")
+
     @classmethod
     def build(cls, model: KinematicModel, structure: StepStructure, settings: TrackerSettings, backend: QPBackend,
               B: int) -> "BatchSetup":
