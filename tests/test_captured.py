@@ -105,7 +105,7 @@ def test_a_step_with_an_active_bound_has_its_qp_solved_by_the_backend(walking, u
 
 def test_on_a_cpu_a_batch_solved_on_the_tree_steps_eagerly_and_a_smaller_one_is_replayed(walking, uncompiled,
                                                                                         monkeypatch):
-    """The capture's C++ for the tree's elimination is slower than the eager step there (structure.py)."""
+    """On a CPU the captured step is slower than the eager one's tree elimination (BatchSetup.replays_faster)."""
     from torchik.method.structure import BatchSetup
 
     model, _, sequence = walking
