@@ -103,6 +103,21 @@ def test_a_step_with_an_active_bound_has_its_qp_solved_by_the_backend(walking, u
     assert solved == [0, 1] + [k for k in range(2, len(sequence)) if active[k] > 0] and len(solved) > 10
 
 
+def test_on_a_cpu_a_batch_solved_on_the_tree_steps_eagerly_and_a_smaller_one_is_replayed(walking, uncompiled,
+                                                                                        monkeypatch):
+    """On a CPU the captured step is slower than the eager one's tree elimination (BatchSetup.replays_faster)."""
+    from torchik.method.structure import BatchSetup
+
+    model, _, sequence = walking
+    monkeypatch.setattr(BatchSetup, "TREE_FROM", 4)
+    short = batch_of(TargetSequence(*(t[:5] for t in vars(sequence).values())), 4)
+    tracker = DynamicalIK(model, LINKS, dt=0.01, compile=True, backend="batched")
+    tree = tracker.run(short)
+    assert tracker.captured is None and not torch.isnan(tree.diagnostics["kinematics_time"]).any()
+    tracker.run(TargetSequence(*(t[:, :2] if t.dim() > 1 else t for t in vars(short).values())))
+    assert tracker.captured is not None  # 2 subjects: solved densely, replayed
+
+
 def test_a_dt_of_the_wrong_shape_is_refused_as_the_eager_step_refuses_it(walking, uncompiled):
     from torchik import InputError
 

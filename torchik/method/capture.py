@@ -18,6 +18,8 @@ process, load it (a few seconds of tracing and lookup).
 
 from __future__ import annotations
 
+import contextlib
+import logging
 from typing import Any, Callable, Sequence
 
 import torch
@@ -51,11 +53,32 @@ def capture(fn: Callable[..., Sequence[torch.Tensor]], inputs: Sequence[torch.Te
             # kernels launched one by one: not a CUDA graph, whose outputs the next replay would
             # overwrite while the tracker still holds them (the state, two steps of targets)
             cpu = all(t.device.type == "cpu" for t in inputs)
-            compiled: Any = compile_fx(graph, examples, config_patches={"cpp_wrapper": True} if cpu else {})
-            compiled(*examples)  # the first call finishes the compilation
+            with _quiet_fallbacks():
+                compiled: Any = compile_fx(graph, examples, config_patches={"cpp_wrapper": True} if cpu else {})
+                compiled(*examples)  # the first call finishes the compilation
     except Exception as error:  # an environment without a compiler fails in many ways
         raise CaptureError(f"could not compile the step ({type(error).__name__}: {str(error).splitlines()[0]})") from error
     return compiled
+
+
+class _NoShimNotice(logging.Filter):
+    """Drops TorchInductor's notice that an operation (the Cholesky factorisation, the triangular
+    solves) has no C shim: the C++ wrapper then calls it through the dispatcher, as the eager step
+    does, which is no fault of the user's and nothing they can act on."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "missing a c-shim implementation" not in str(record.msg)
+
+
+@contextlib.contextmanager
+def _quiet_fallbacks():
+    """TorchInductor's lowering without its no-C-shim notices (`_NoShimNotice`), its other messages kept."""
+    logger, notice = logging.getLogger("torch._inductor.ir"), _NoShimNotice()
+    logger.addFilter(notice)
+    try:
+        yield
+    finally:
+        logger.removeFilter(notice)
 
 
 def _small_products() -> dict:

@@ -22,7 +22,8 @@ over a walking run).
 
 Opt-in, not automatic: the first capture of a model's step on a machine compiles C++ for tens of
 seconds (later ones load it from TorchInductor's cache in seconds), which pays off on long runs
-and live tracking, not in a test or a demo of a few hundred steps. It is made at the first settled
+and live tracking, not in a test or a demo of a few hundred steps. Only where it is the faster
+step (`BatchSetup.replays_faster`): not for a CPU batch solved on the joints' tree. It is made at the first settled
 step of a batch size and kept for the tracker's later runs of that size, with the model's tensors
 as they are then.
 """

@@ -120,7 +120,8 @@ class DynamicalIK:
         self.backend = self._backend_for(B)
         self._batch = BatchSetup.build(self.model, self.structure, self.settings, self.backend, B)
         self._no_restart = torch.zeros(B, dtype=torch.bool, device=state.base_position.device)
-        if self.settings.compile:
+        self._captured = None
+        if self.settings.compile and self._batch.replays_faster:
             if B not in self._captures:
                 self._captures[B] = CapturedStep(model, self.structure, self.settings, self._batch)
             self._captured = self._captures[B]
@@ -138,7 +139,8 @@ class DynamicalIK:
 
     @property
     def captured(self) -> CapturedStep | None:
-        """The captured step for the current batch size (with settings.compile, else None): its
+        """The captured step for the current batch size (with settings.compile, where it is the faster
+        step: `BatchSetup.replays_faster`; else None): its
         `compile_seconds` is how long the capture took (None before the first settled step), and
         `unavailable` is True where it could not be made here (the step then runs eagerly)."""
         return self._captured
