@@ -38,14 +38,16 @@ def batch_of(sequence: TargetSequence, B: int) -> TargetSequence:
     return TargetSequence(*(grow(t) for t in vars(sequence).values()))
 
 
-def assert_same_run(model, sequence, atol=1e-12, tracker=None, links=LINKS, **settings):
-    """Eager and captured runs of `sequence` give the same states and diagnostics; returns the
-    steps the captured one ran eagerly (a list of indices) and its trajectory."""
+def assert_same_run(model, sequence, atol=1e-12, tracker=None, links=LINKS, velocity_atol=None, **settings):
+    """Eager and captured runs of `sequence` give the same states and diagnostics (the velocity to
+    `velocity_atol`, by default `atol`); returns the steps the captured one ran eagerly (a list of
+    indices) and its trajectory."""
     eager = DynamicalIK(model, links, dt=0.01, **settings).run(sequence)
     tracker = tracker or DynamicalIK(model, links, dt=0.01, compile=True, **settings)
     replay = tracker.run(sequence)
     for name in STATES:
-        torch.testing.assert_close(getattr(replay, name), getattr(eager, name), rtol=0, atol=atol)
+        tolerance = velocity_atol if name == "velocity" and velocity_atol is not None else atol
+        torch.testing.assert_close(getattr(replay, name), getattr(eager, name), rtol=0, atol=tolerance)
     for name in ("mnte", "residual_norm"):
         torch.testing.assert_close(replay.diagnostics[name], eager.diagnostics[name], rtol=0, atol=atol)
     for name in EXACT:
@@ -69,11 +71,13 @@ def test_other_steps_replayed_give_the_eager_states_too(uncompiled, case):
     motion = periodic_motion(model, 1.0, 100, seed=1)
     sequence = targets_from_motion(model, motion, links, position_links)
     # iCub's walk passes near singular configurations, where H's conditioning turns the rounding of
-    # sums taken in another order into 1e-9 differences of the velocity (1e-11 of the joints) for a
-    # few steps: rounding that the conditioning amplifies, not another solution
+    # sums taken in another order into differences of the velocity for a few steps (measured 1e-9 on
+    # one CPU, 1.07e-8 on an AVX-512 one, whose vector width changes the order): rounding that the
+    # conditioning amplifies, not another solution; the joints then differ by 6e-11.
+    icub = case == "icub"
     eager_steps, _ = assert_same_run(model, sequence, links=links, position_links=position_links,
                                      scheme="paper" if case == "paper scheme" else "midpoint",
-                                     atol=1e-8 if case == "icub" else 1e-12)
+                                     atol=1e-9 if icub else 1e-12, velocity_atol=1e-7 if icub else None)
     assert eager_steps[:2] == [0, 1] and len(eager_steps) < len(sequence) // 2
 
 
