@@ -4,8 +4,8 @@ Properties:
 - a variant rebuilt without one kept effect is the original with the others corrected, in order;
 - the effect added last, and one a later model effect depends on, are not taken out alone;
 - a kept effect whose cause is absent no longer pays with the others in place and is dropped, as
-  an echo of the effect added last, the subject taking the variant's state; a kept effect whose
-  cause is present is kept.
+  an echo of the effect added last (the report's first lines say so), the subject rebuilt without
+  it; a kept effect whose cause is present is kept.
 
 Recordings: Human48 walking, 5 s at 50 Hz, the scenarios' sensor noise; a gyro bias of 0.1 rad/s
 (5.7 deg/s) on one link, far above what its fit resolves at that noise.
@@ -21,7 +21,8 @@ from torchik.pipelines.diagnosis import elimination
 from torchik.pipelines.diagnosis.effect import SIGNIFICANT
 from torchik.pipelines.diagnosis.gyro import GyroBias
 from torchik.pipelines.diagnosis.joints import JointLimit, MissingDof
-from torchik.pipelines.diagnosis.loop import Step, errors
+from torchik.pipelines.diagnosis.loop import Diagnosis, Step, errors
+from torchik.pipelines.diagnosis.report import answer
 from torchik.pipelines.diagnosis.subject import Subject, analyse_subjects
 from torchik.synthetic.scenarios import scenario
 
@@ -84,6 +85,10 @@ def test_an_effect_without_its_cause_is_dropped_as_an_echo(biased):
     assert [e.target for e in s.effects] == [CAUSE]
     assert s.rejected == [echo] and f"echo of gyro_bias at {CAUSE}" in echo.notes
     np.testing.assert_allclose(s.recording.angular_velocity, bias.correct(recording).angular_velocity)
+    d = Diagnosis(s.steps, s.recording, recording, s.urdf, s.model, LINKS, s.current, s.current, None,
+                  rejected=s.rejected)
+    text = "\n".join(answer(d))
+    assert f"gyro bias on {OTHER}" in text and f"rejected as an echo of gyro_bias at {CAUSE}" in text
 
 
 def test_an_effect_whose_cause_is_present_is_kept(biased):
