@@ -3,6 +3,7 @@
 Properties:
 - a variant rebuilt without one kept effect is the original with the others corrected, in order;
 - the effect added last, and one a later model effect depends on, are not taken out alone;
+- effects relate (and only then are re-scored) on a link in common or across one joint;
 - a kept effect whose cause is absent no longer pays with the others in place and is dropped, as
   an echo of the effect added last (the report's first lines say so), the subject rebuilt without
   it; a kept effect whose cause is present is kept.
@@ -19,7 +20,7 @@ import pytest
 from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.diagnosis import elimination
 from torchik.pipelines.diagnosis.effect import SIGNIFICANT
-from torchik.pipelines.diagnosis.gyro import GyroBias
+from torchik.pipelines.diagnosis.gyro import GyroBias, StreamDelay
 from torchik.pipelines.diagnosis.joints import JointLimit, MissingDof
 from torchik.pipelines.diagnosis.loop import Diagnosis, Step, errors
 from torchik.pipelines.diagnosis.report import answer
@@ -27,7 +28,7 @@ from torchik.pipelines.diagnosis.subject import Subject, analyse_subjects
 from torchik.synthetic.scenarios import scenario
 
 LINKS = TRACKED_LINKS["human48"]
-CAUSE, OTHER = "LeftForeArm", "RightLowerLeg"
+CAUSE, OTHER, FAR = "LeftForeArm", "LeftHand", "RightLowerLeg"  # OTHER is next to CAUSE across the wrist
 
 
 @pytest.fixture(scope="module")
@@ -75,6 +76,19 @@ def test_the_last_effect_and_those_a_later_one_builds_on_are_not_taken_out():
     last = GyroBias("gyro_bias", CAUSE, dict(bias=[0.0, 0.0, 0.0]))
     assert elimination.removable([axis, on_it, elsewhere, last]) == [on_it, elsewhere]
     assert elimination.removable([elsewhere, axis, last]) == [elsewhere, axis]
+
+
+def test_effects_relate_on_their_links_and_across_one_joint(biased):
+    model, urdf, _, bias = biased
+    on = lambda link: GyroBias("gyro_bias", link, dict(bias=[0.0, 0.0, 0.0]))  # noqa: E731
+    assert elimination.related(on(OTHER), bias, model, urdf, LINKS)
+    assert not elimination.related(on(FAR), bias, model, urdf, LINKS)
+    limit = JointLimit("joint_limit", "jLeftElbow_rotz", dict(side="upper", limit=0.0, needed=0.1))
+    assert elimination.reach(limit, model, LINKS) == {"LeftForeArm", "LeftHand"}
+    assert elimination.related(on("LeftUpperArm"), limit, model, urdf, LINKS)
+    assert not elimination.related(on(FAR), limit, model, urdf, LINKS)
+    device = StreamDelay("stream_delay", "all", dict(delay=0.05, links=list(LINKS)))
+    assert elimination.related(on(FAR), device, model, urdf, LINKS)
 
 
 def test_an_effect_without_its_cause_is_dropped_as_an_echo(biased):

@@ -2,8 +2,9 @@
 
 An effect chosen early can be the echo of a cause found later (a drift on a foot taken first as a
 toe's, a wrist's misalignment first put on the forearm): once the cause is in, the echo explains
-nothing more. When a round adds an effect, for every effect kept before it the subject is rebuilt
-from its original recording and URDF with all the kept effects but that one (`variants`). They are
+nothing more. When a round adds an effect, for every effect kept before it and related to it (on
+the same links or across one joint: `related`) the subject is rebuilt from its original recording
+and URDF with all the kept effects but that one (`variants`). They are
 tracked in the same batch as the subject itself (`track`: one batch per model; the variants of
 MODEL_FREE effects need no tracking), so they carry the new effect at its first fit, before the
 loop refines it. Once the new effect is kept, each effect's kind and target are fitted again on a
@@ -46,6 +47,28 @@ def removable(kept: Sequence[Effect]) -> list[Effect]:
     return [e for k, e in enumerate(kept[:-1]) if not any(depends(later, e) for later in kept[k + 1:])]
 
 
+def reach(effect: Effect, model: KinematicModel, links: Sequence[str]) -> set[str]:
+    """The tracked links whose residual `effect` moves: its sensor's (every sensor of a device's), or,
+    for a model effect, those below the joint it adds or changes (in `model`, which has it)."""
+    if not effect.model_effect:
+        return set(effect.params.get("links", [effect.target]))
+    joint = effect.joint_name() if isinstance(effect, joints.MissingDof) else effect.target
+    below = model.select(links).ancestor_mask[:, model.joint_names.index(joint)]
+    return {name for name, moved in zip(links, below.tolist()) if moved}
+
+
+def related(a: Effect, b: Effect, model: KinematicModel, urdf: str, links: Sequence[str]) -> bool:
+    """Whether a and b can explain the same residual: they move a link in common, or links on either
+    side of one joint (the tracker shares a target's inconsistency between the links the joints
+    between them connect). Effects on links further apart are not each other's echoes, and their
+    variants need not be tracked."""
+    near = reach(b, model, links)
+    for group in joints.joint_groups(urdf, links):
+        if group.child in near or group.parent in near:
+            near |= {group.child, group.parent}
+    return bool(reach(a, model, links) & near)
+
+
 def without(recording: Recording, urdf: str, kept: Sequence[Effect], drop: Effect) -> tuple[Recording, str]:
     """The original recording and URDF with every kept effect but `drop` added again, in their order."""
     for effect in kept:
@@ -64,10 +87,11 @@ def rescore(analysis: Analysis, b: int, effect: Effect, urdf: str, derived: torc
     it still does), and its fit there (its kind and target on the train half, scored on the test half;
     None when the data no longer give one)."""
     train, test = halves(analysis.time)
-    found = [c for c in candidates(analysis, b, train, test, urdf, (effect.kind,), derived, effect.target)
-             if c.fit is not None]
+    every = candidates(analysis, b, train, test, urdf, (effect.kind,), derived, effect.target)
+    found = [c for c in every if c.fit is not None]
     if not found:
-        return "with the others in place nothing of it can be fitted", None
+        notes = "; ".join(c.notes for c in every if c.notes) or "no fit"
+        return f"with the others in place it cannot be fitted ({notes})", None
     why = found[0].significant(threshold, noise_floor(analysis, b).axis_rms)
     return (f"with the others in place {why}" if why else ""), found[0]
 
@@ -77,10 +101,14 @@ Variant = tuple[Subject, Effect, Subject]  # (the subject, the kept effect left 
 
 def variants(s: Subject, kept: Sequence[Effect]) -> list[Variant]:
     """Subject s rebuilt from its source without each of the `kept` effects that can be taken out
-    alone (removable); those of measurement effects share s's model, so that they track as one batch."""
+    alone (removable) and is related to the last one; those of measurement effects share s's model,
+    so that they track as one batch."""
     assert s.source is not None, "set by the loop"
+    links = s.current[0].links
     out = []
     for effect in removable(kept):
+        if not related(effect, kept[-1], s.model, s.urdf, links):
+            continue
         recording, urdf = without(*s.source, kept, effect)
         model = KinematicModel.from_urdf(urdf, name=s.model.name, dtype=s.model.dtype) if effect.model_effect \
             else s.model
