@@ -1,7 +1,7 @@
 """The diagnosis tried on recordings it shares no assumption with, scored against what was injected.
 
     python experiments/diagnosis_study.py [--seeds 10] [--pairs 10] [--clean 20] [--duration 12]
-                                          [--families F1,F2] [--json FILE] [--markdown FILE]
+                                          [--families F1,F2] [--json FILE] [--markdown FILE] [--recordings DIR]
 
 Recordings come from the published Human48 (and, for a missing axis, Human66) URDF in
 ../shared/reference-models, through pinocchio's kinematics (not torchik's): a moving base (a walk
@@ -357,11 +357,21 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=1, help="the study's seed (default 1)")
     parser.add_argument("--json", metavar="FILE", help="write every recording's result here")
     parser.add_argument("--markdown", metavar="FILE", help="write the table here")
+    parser.add_argument("--recordings", metavar="DIR", help="only write each recording to DIR/GROUP_SEED.npz (to time "
+                                                            "`torchik diagnose` on them), diagnose none")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 
     links = list(TRACKED_LINKS["human48"])
+    if args.recordings:
+        from torchik.io.recording import save_recording
+
+        Path(args.recordings).mkdir(parents=True, exist_ok=True)
+        for case in cases(args):
+            path = Path(args.recordings) / f"{case.group.replace(' ', '_')}_{case.seed}.npz"
+            print(save_recording(generate(case, links, args.duration, args.rate)[0], path))
+        return 0
     urdf, model = human_urdf(48), load_model("human48")
     results = []
     for case in cases(args):

@@ -309,3 +309,13 @@ def test_the_calibrated_score_keeps_an_effect_of_varying_strength_and_drops_one_
     y_hat = 0.2 * shape
     wander = score(share * 6 * y_hat + noise, share * 6 * y_hat + noise - y_hat, 1)
     assert wander.score > SIGNIFICANT and wander.calibrated <= SIGNIFICANT, (wander.score, wander.calibrated)
+
+
+def test_a_refine_step_within_its_standard_errors_is_negligible():
+    """A correction no larger than its standard error is not applied (nor re-tracked); one beyond is.
+    A joint limit's refit is the range needed, not a correction: never negligible."""
+    within = GyroBias("gyro_bias", "T8", dict(bias=[0.001, -0.002, 0.0]), dict(bias=[0.002, 0.002, 0.002]))
+    beyond = GyroBias("gyro_bias", "T8", dict(bias=[0.001, -0.003, 0.0]), dict(bias=[0.002, 0.002, 0.002]))
+    assert within.negligible() and not beyond.negligible()
+    limit = JointLimit("joint_limit", "jLeftKnee_roty", dict(side="lower", limit=0.0, needed=0.0), dict(needed=1.0))
+    assert not limit.negligible()

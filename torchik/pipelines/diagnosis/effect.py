@@ -268,6 +268,16 @@ class Effect:
         self.stderr = update.stderr
         return self
 
+    def negligible(self) -> bool:
+        """Whether this fit, taken as a correction (a refine step's update), moves every parameter by no
+        more than its standard error: the data cannot tell the refined effect from the one in place, so
+        applying it and re-tracking (a second of a 12 s recording) would change nothing they show."""
+        for name, sd in self.stderr.items():
+            if name in self.params and np.any(np.abs(np.asarray(self.params[name], dtype=np.float64))
+                                              > np.asarray(sd, dtype=np.float64)):
+                return False
+        return bool(self.stderr)
+
     def summary(self) -> str:
         return f"{self.kind} at {self.target}"
 

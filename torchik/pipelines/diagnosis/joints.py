@@ -183,6 +183,9 @@ class JointLimit(Effect):
         self.stderr = update.stderr
         return self
 
+    def negligible(self):
+        return False  # a refit gives the range needed, not a correction of it: always taken
+
     def implausible(self):
         needed, limit = self.params["needed"], self.params["limit"]
         if abs(needed) > math.pi or abs(needed - limit) > MAX_WIDENING:

@@ -10,7 +10,9 @@
         add it (correct the recording, or augment the URDF), re-track, and
         refine its parameters `refine` times (the fits are linearised and the tracker absorbs
         part of an effect: Gauss-Newton steps)
-        keep it if the error it acts on did not rise and it is still plausible; else take it back
+        keep it if the error it acts on did not rise and it is still plausible; else take it back;
+        then re-score every effect kept before it with the others in place and drop those that no
+        longer pay for their parameters, as echoes of it (elimination.py)
     until no candidate is significant, or `max_effects` rounds are done; Diagnosis.stop says which
     (STOPS), and Diagnosis.noise how much of what remains the noise accounts for.
 
@@ -23,7 +25,7 @@ once, those whose model has changed in a batch of their own.
 
 from __future__ import annotations
 
-import math
+import functools
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -33,14 +35,14 @@ import torch
 from ...io.recording import Recording
 from ...method.kinematics import KinematicModel
 from ...method.metrics import orientation_error
-from . import gyro, joints, placement, position
-from .analysis import DEFAULT_GAIN, Analysis, NoiseFloor, analyse, joint_summary, link_summary, noise_floor
+from . import elimination, joints
+from .analysis import DEFAULT_GAIN, Analysis, NoiseFloor, joint_summary, link_summary, noise_floor
 from .calibration import FORMAT
-from .effect import SIGNIFICANT, Effect, halves
+from .candidates import KINDS
+from .effect import SIGNIFICANT, Effect
+from .subject import Subject, analyse_subjects
 
 FAMILIES = ("gyro", "placement", "joints", "position")
-KINDS = ("gyro_bias", "gyro_scale", "stream_delay", "misalignment", "sensor_delay", "heading_drift", "missing_dof",
-         "joint_limit", "position_offset")
 TIE = 0.9  # a second candidate scoring this share of the best explains the data nearly as well
 WORSE = 1e-3  # an effect that raises its error by more than this share once re-tracked is taken back
 NOISE_SHARE = 0.8  # the noise accounts for this share of what remains: the residual is consistent with it
@@ -49,27 +51,6 @@ STOPS = {"noise": "consistent with noise: no candidate is significant, and the n
                         "of the candidates describes",
          "unidentifiable": "nothing identifiable: no candidate can be fitted on these data",
          "cap": "cap reached: candidates were still significant after the last round allowed (--max-effects)"}
-
-
-def candidates(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, urdf: str,
-               kinds: Sequence[str] = KINDS, derived: torch.Tensor | None = None, target: str | None = None) -> list[Effect]:
-    """Every candidate effect of subject b, fitted on `train` and scored on `test`, best first; last,
-    those the data cannot identify (no fit; their notes say why). derived [L]: links without a gyro of
-    their own (default: analysis.derived); target: only the candidates on that link or joint (a refit;
-    each is fitted on its own data, so they are the same as among all)."""
-    wanted = set(kinds)
-    out: list[Effect] = []
-    if wanted & {"gyro_bias", "gyro_scale", "stream_delay"}:
-        out += gyro.fit(analysis, b, train, test, derived, target=target)
-    if wanted & {"misalignment", "sensor_delay", "heading_drift"}:
-        out += placement.fit(analysis, b, train, test, derived, target=target)
-    if wanted & {"missing_dof", "joint_limit"}:
-        out += joints.fit(analysis, b, train, test, urdf, target=target)
-    if "position_offset" in wanted:
-        out += position.fit(analysis, b, train, test)
-    out = [c for c in out if c.kind in wanted and (target is None or c.target == target)
-           and (c.fit is None or math.isfinite(c.score))]
-    return sorted(out, key=lambda c: -c.score)
 
 
 @dataclass
@@ -156,11 +137,11 @@ class Diagnosis:
     def effects(self) -> list[Effect]:
         return [s.effect for s in self.steps]
 
-    @property
+    @functools.cached_property  # the report reads them dozens of times; each is a pass over [T,L] rotations
     def before(self) -> Errors:
         return errors(*self.first)
 
-    @property
+    @functools.cached_property
     def after(self) -> Errors:
         return errors(*self.last)
 
@@ -170,72 +151,7 @@ class Diagnosis:
                     effects=[e.to_json() for e in self.effects if not e.model_effect])
 
 
-@dataclass
-class _Subject:
-    recording: Recording
-    urdf: str
-    model: KinematicModel
-    steps: list = field(default_factory=list)
-    done: bool = False
-    best_rejected: Effect | None = None
-    analysis: tuple[Analysis, int] | None = None  # set by the first round's analysis
-    first: tuple[Analysis, int] | None = None
-    derived: torch.Tensor | None = None
-    unobservable: list = field(default_factory=list)
-    rejected: list = field(default_factory=list)
-    stop: str = "cap"
-
-    @property
-    def current(self) -> tuple[Analysis, int]:
-        """The latest analysis and the subject's index in its batch."""
-        assert self.analysis is not None, "analysed in the loop's first round"
-        return self.analysis
-
-    @property
-    def initial(self) -> tuple[Analysis, int]:
-        """The first round's analysis and the subject's index in its batch."""
-        assert self.first is not None, "analysed in the loop's first round"
-        return self.first
-
-    def candidates(self, kinds, train=None, test=None, target=None) -> list[Effect]:
-        """Candidates on the current analysis (train and test: halves() unless given; target: only
-        those on that link or joint)."""
-        analysis, b = self.current
-        if train is None:
-            train, test = halves(analysis.time)
-        return candidates(analysis, b, train, test, self.urdf, kinds, self.derived, target)
-
-    def refit(self, effect: Effect) -> Effect | None:
-        """The effect's kind and target fitted again on all the current data (after the transient)."""
-        train, test = halves(self.current[0].time, guard=0.0)
-        found = [c for c in self.candidates((effect.kind,), train | test, train | test, effect.target)
-                 if c.fit is not None]
-        return found[0] if found else None
-
-    def add(self, effect: Effect) -> None:
-        if effect.model_effect:
-            self.urdf = effect.augment(self.urdf)
-            self.model = KinematicModel.from_urdf(self.urdf, name=f"{self.model.name}+", dtype=self.model.dtype)
-        else:
-            self.recording = effect.correct(self.recording)
-
-    def saved(self) -> tuple:
-        return self.recording, self.urdf, self.model, self.analysis
-
-
-def _analyse(subjects: list[_Subject], links, gain: float, progress: bool, max_samples: int = 300) -> None:
-    """Track and analyse the subjects, one batch per model."""
-    groups: dict[int, list[_Subject]] = {}
-    for s in subjects:
-        groups.setdefault(id(s.model), []).append(s)
-    for group in groups.values():
-        analysis = analyse(group[0].model, [s.recording for s in group], links, gain=gain, progress=progress,
-                           max_samples=max_samples)
-        for b, s in enumerate(group):
-            s.analysis = (analysis, b)
-
-
-def _choose(s: _Subject, kinds, threshold: float, first: bool) -> Effect | None:
+def _choose(s: Subject, kinds, threshold: float, first: bool) -> Effect | None:
     """The best significant candidate of subject s, refitted on all the data (None when none is)."""
     taken = s.rejected + [st.effect for st in s.steps]
     found = [c for c in s.candidates(kinds) if not any(c.overlaps(e) for e in taken)]
@@ -274,10 +190,11 @@ def _choose(s: _Subject, kinds, threshold: float, first: bool) -> Effect | None:
 def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], links, gain: float = DEFAULT_GAIN,
              max_effects: int = 6, threshold: float = SIGNIFICANT, refine: int = 2, kinds: Sequence[str] = KINDS,
              progress: bool = False, log: Callable[[str], None] | None = None,
-             max_samples: int = 300) -> list[Diagnosis]:
+             max_samples: int = 300, eliminate: bool = True) -> list[Diagnosis]:
     """Run the loop on B recordings (the same length, links the model's) with `model` built from
     `urdf`. Returns one Diagnosis per recording. kinds: the candidate effects considered;
-    max_samples: the sample times at which effects are fitted against the task Jacobian.
+    max_samples: the sample times at which effects are fitted against the task Jacobian; eliminate:
+    after each round, drop kept effects that no longer pay with the others in place (elimination.py).
 
     An effect added is kept only if, re-tracked, it does not raise the error it acts on (Effect.error:
     the orientations' MNTE, the angular-velocity RMSE or the base's velocity RMSE; by more than
@@ -285,8 +202,8 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
     subject goes back to where it was and the effect is listed in Diagnosis.rejected, as are
     significant candidates whose fitted values are implausible (Effect.implausible)."""
     links = tuple(links)
-    subjects = [_Subject(rec, urdf, model) for rec in recordings]
-    _analyse(subjects, links, gain, progress, max_samples)
+    subjects = [Subject(rec, urdf, model, source=(rec, urdf)) for rec in recordings]
+    analyse_subjects(subjects, links, gain, progress, max_samples)
     for s in subjects:
         s.first = s.analysis
         s.derived = s.current[0].derived[s.current[1]]
@@ -302,17 +219,18 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
             s.add(effect)
         if not added:
             break
-        changed = [s for s, *_ in added]
-        _analyse(changed, links, gain, progress, max_samples)
+        # the variants for backward elimination track in the batch of their subject
+        found = [v for s, effect, *_ in added for v in elimination.variants(s, s.effects + [effect])] if eliminate else []
+        elimination.track([s for s, *_ in added], found, links, gain, progress, max_samples)
         for _ in range(refine):
             moved = []  # those left as they were keep their analysis: re-tracking would give it again
             for s, effect, *_ in added:
                 update = None if isinstance(effect, joints.MissingDof) else s.refit(effect)
-                if update is not None:
+                if update is not None and not update.negligible():
                     s.add(update)
                     effect.refine(update)
                     moved.append(s)
-            _analyse(moved, links, gain, progress, max_samples)
+            analyse_subjects(moved, links, gain, progress, max_samples)
         for s, effect, before, saved in added:
             after = errors(*s.current)
             old, new = before.overall[effect.error], after.overall[effect.error]
@@ -325,6 +243,8 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
             effect.notes = "; ".join(filter(None, [effect.notes, f"reverted: {why}"]))
             s.rejected.append(effect)
             say(f"round {round_ + 1}: {effect.kind} at {effect.target} reverted ({why})")
+        kept = {id(s) for s, effect, *_ in added if s.steps and s.steps[-1].effect is effect}
+        elimination.eliminate([v for v in found if id(v[0]) in kept], links, gain, threshold, progress, max_samples, say)
     out = []
     for s, original in zip(subjects, recordings):
         analysis, b = s.current

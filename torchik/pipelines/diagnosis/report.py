@@ -113,7 +113,11 @@ def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]
     if implausible:
         lines += ["", "## Refused as implausible: a sign of another error", ""]
         lines += [f"- {e.summary()} (score {e.score:.0f}): {e.notes}" for e in implausible]
-    reverted = [e for e in d.rejected if "implausible:" not in e.notes]
+    echoes = [e for e in d.rejected if "echo of" in e.notes]
+    if echoes:
+        lines += ["", "## Dropped as echoes (kept once, then explained by a later effect)", ""]
+        lines += [f"- {e.summary()} (score {e.score:.0f} when added): {e.notes}" for e in echoes]
+    reverted = [e for e in d.rejected if "implausible:" not in e.notes and "echo of" not in e.notes]
     if reverted:
         lines += ["", "## Significant but not kept", ""]
         lines += [f"- {e.kind} at {e.target} (score {e.score:.0f}): {e.notes}" for e in reverted]
@@ -170,6 +174,11 @@ def answer(d: Diagnosis) -> list[str]:
     if refused:
         lines += ["", "**Refused as implausible** (not adopted; each points to another error):", ""]
         lines += [f"- {e.summary()}: {e.notes.split('implausible: ', 1)[1]}" for e in refused]
+    echoes = [e for e in d.rejected if "echo of" in e.notes]
+    if echoes:
+        lines += ["", "**Rejected as echoes** (kept once, then no longer significant with a later effect in place):",
+                  ""]
+        lines += [f"- {e.summary()}: rejected as an {e.notes.split('dropped as an ', 1)[1]}" for e in echoes]
     return lines + ["", f"**Why the loop stopped:** {d.why_stopped}."]
 
 

@@ -1,0 +1,36 @@
+"""The candidate effects of every family, fitted on one subject's analysis and scored on held-out time."""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import torch
+
+from . import gyro, joints, placement, position
+from .analysis import Analysis
+from .effect import Effect
+
+KINDS = ("gyro_bias", "gyro_scale", "stream_delay", "misalignment", "sensor_delay", "heading_drift", "missing_dof",
+         "joint_limit", "position_offset")
+
+
+def candidates(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, urdf: str,
+               kinds: Sequence[str] = KINDS, derived: torch.Tensor | None = None, target: str | None = None) -> list[Effect]:
+    """Every candidate effect of subject b, fitted on `train` and scored on `test`, best first; last,
+    those the data cannot identify (no fit; their notes say why). derived [L]: links without a gyro of
+    their own (default: analysis.derived); target: only the candidates on that link or joint (a refit;
+    each is fitted on its own data, so they are the same as among all)."""
+    wanted = set(kinds)
+    out: list[Effect] = []
+    if wanted & {"gyro_bias", "gyro_scale", "stream_delay"}:
+        out += gyro.fit(analysis, b, train, test, derived, target=target)
+    if wanted & {"misalignment", "sensor_delay", "heading_drift"}:
+        out += placement.fit(analysis, b, train, test, derived, target=target)
+    if wanted & {"missing_dof", "joint_limit"}:
+        out += joints.fit(analysis, b, train, test, urdf, target=target)
+    if "position_offset" in wanted:
+        out += position.fit(analysis, b, train, test)
+    out = [c for c in out if c.kind in wanted and (target is None or c.target == target)
+           and (c.fit is None or math.isfinite(c.score))]
+    return sorted(out, key=lambda c: -c.score)

@@ -1,0 +1,95 @@
+"""A recording in the diagnosis loop, and the tracking and analysis of several as batches."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+
+from ...io.recording import Recording
+from ...method.kinematics import KinematicModel
+from ...method.state import Trajectory
+from .analysis import Analysis, analyse
+from .candidates import candidates
+from .effect import Effect, halves
+
+
+@dataclass
+class Subject:
+    """One recording in the loop: its current (corrected) recording, URDF and model, the effects kept
+    (steps) and rejected, its latest and first analyses (subject `b` of a batch), and the recording
+    and URDF it started from (source)."""
+
+    recording: Recording
+    urdf: str
+    model: KinematicModel
+    steps: list = field(default_factory=list)
+    done: bool = False
+    best_rejected: Effect | None = None
+    analysis: tuple[Analysis, int] | None = None  # set by the first round's analysis
+    first: tuple[Analysis, int] | None = None
+    derived: torch.Tensor | None = None
+    unobservable: list = field(default_factory=list)
+    rejected: list = field(default_factory=list)
+    stop: str = "cap"
+    source: tuple[Recording, str] | None = None  # the recording and URDF the loop started from
+
+    @property
+    def effects(self) -> list[Effect]:
+        return [st.effect for st in self.steps]
+
+    @property
+    def current(self) -> tuple[Analysis, int]:
+        """The latest analysis and the subject's index in its batch."""
+        assert self.analysis is not None, "analysed in the loop's first round"
+        return self.analysis
+
+    @property
+    def initial(self) -> tuple[Analysis, int]:
+        """The first round's analysis and the subject's index in its batch."""
+        assert self.first is not None, "analysed in the loop's first round"
+        return self.first
+
+    def candidates(self, kinds, train=None, test=None, target=None) -> list[Effect]:
+        """Candidates on the current analysis (train and test: halves() unless given; target: only
+        those on that link or joint)."""
+        analysis, b = self.current
+        if train is None:
+            train, test = halves(analysis.time)
+        return candidates(analysis, b, train, test, self.urdf, kinds, self.derived, target)
+
+    def refit(self, effect: Effect) -> Effect | None:
+        """The effect's kind and target fitted again on all the current data (after the transient)."""
+        train, test = halves(self.current[0].time, guard=0.0)
+        found = [c for c in self.candidates((effect.kind,), train | test, train | test, effect.target)
+                 if c.fit is not None]
+        return found[0] if found else None
+
+    def add(self, effect: Effect) -> None:
+        if effect.model_effect:
+            self.urdf = effect.augment(self.urdf)
+            self.model = KinematicModel.from_urdf(self.urdf, name=f"{self.model.name}+", dtype=self.model.dtype)
+        else:
+            self.recording = effect.correct(self.recording)
+
+    def saved(self) -> tuple:
+        return self.recording, self.urdf, self.model, self.analysis
+
+
+def analyse_subjects(subjects: list[Subject], links, gain: float, progress: bool, max_samples: int = 300) -> None:
+    """Track and analyse the subjects, one batch per model."""
+    groups: dict[int, list[Subject]] = {}
+    for s in subjects:
+        groups.setdefault(id(s.model), []).append(s)
+    for group in groups.values():
+        analysis = analyse(group[0].model, [s.recording for s in group], links, gain=gain, progress=progress,
+                           max_samples=max_samples)
+        for b, s in enumerate(group):
+            s.analysis = (analysis, b)
+
+
+def trajectory_of(analysis: Analysis, b: int) -> Trajectory:
+    """Subject b's trajectory of a batch's analysis, as a batch of one."""
+    t = analysis.trajectory
+    return Trajectory(t.time, t.base_position[:, b:b + 1], t.base_rotation[:, b:b + 1], t.joint_positions[:, b:b + 1],
+                      t.velocity[:, b:b + 1])
