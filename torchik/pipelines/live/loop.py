@@ -111,8 +111,13 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
     joints)."""
     options = options or LiveOptions()
     mailbox = Mailbox(options.backlog)
-    receiver = threading.Thread(target=_receive, args=(source, mailbox), daemon=True, name="torchik-live-receiver")
-    receiver.start()
+    # a source that receives in a process of its own is polled from this thread: no second thread
+    # of this process then competes with the step for the GIL
+    deliver = getattr(source, "deliver", None)
+    receiver = None
+    if deliver is None:
+        receiver = threading.Thread(target=_receive, args=(source, mailbox), daemon=True, name="torchik-live-receiver")
+        receiver.start()
     loop = _Loop(model, settings or TrackerSettings(), selection_for, Outputs(publisher, viewer, retarget),
                  options.keep_states, getattr(source, "lsl_clock", False))
     start = last_progress = last_check = time.perf_counter()
@@ -122,7 +127,10 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
             # a source knows its rate before it yields its first sample (MVN estimates it from the
             # first time codes, LSL reads the stream's nominal rate)
             gather = options.gather_s if options.gather_s is not None else 0.5 / (source.rate or 100.0)
-            got = mailbox.take(loop.active, timeout=0.05, gather=gather)
+            if deliver is None:
+                got = mailbox.take(loop.active, timeout=0.05, gather=gather)
+            else:
+                got = _take_delivered(deliver, mailbox, loop.active, timeout=0.05, gather=gather)
             now = time.perf_counter()
             if got:
                 assert source.rate is not None
@@ -144,7 +152,8 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
         interrupted = True
     finally:
         source.close()
-        receiver.join(timeout=2.0)
+        if receiver is not None:
+            receiver.join(timeout=2.0)
         if viewer is not None:
             viewer.close(_counters(source, mailbox, loop))
     return loop.result(source, mailbox, interrupted)
@@ -156,6 +165,19 @@ def _receive(source: Source, mailbox: Mailbox) -> None:
             mailbox.put(sample)
     finally:
         mailbox.finish()
+
+
+def _take_delivered(deliver, mailbox: Mailbox, active, timeout: float, gather: float) -> dict[int, Sample]:
+    """`Mailbox.take` for a source that delivers into the mailbox when asked (`ReceiverProcess`):
+    what has come is taken in first, then it waits as `take` does."""
+    deliver(mailbox, 0.0 if any(mailbox.queues.values()) else timeout)
+    if any(mailbox.queues.values()):
+        deadline = time.perf_counter() + gather
+        while not mailbox.finished and not all(mailbox.queues.get(c) for c in active):
+            remaining = deadline - time.perf_counter()
+            if remaining <= 0 or not deliver(mailbox, remaining):
+                break
+    return mailbox.take(active, timeout=0.0, gather=0.0)
 
 
 def _counters(source: Source, mailbox: Mailbox, loop: "_Loop") -> dict:
