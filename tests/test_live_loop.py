@@ -109,3 +109,17 @@ def test_two_characters_stream_at_once_and_are_tracked_as_one_batch(model, walki
     first, second = (result.trajectories[c].joint_positions[:, 0] for c in (0, 1))
     assert not torch.allclose(first, second)  # each its own phase of the walk
     assert all(r["mnte"]["median"] < 1e-2 for r in result.report(transient=0.5)["characters"].values())
+
+
+def test_frames_the_loop_steps_over_do_not_restart_a_character_from_the_zero_pose(model, walking):
+    source = MvnSource(Url("udp", "127.0.0.1", 0))
+    # as fast as the socket takes it: the loop steps over most frames, many more than max_gap at once
+    sender = threading.Thread(target=replay, args=(walking, Url("udp", "127.0.0.1", source.address[1]), float("inf")),
+                              kwargs=dict(lead_in_s=0.1))
+    sender.start()
+    result = track_live(source, model, lambda names: Selection.build(names, TRACKED_LINKS["human66"]),
+                        options=LiveOptions(backlog=1, stop_when_idle_s=0.4))
+    sender.join()
+    frames = torch.round(result.trajectories[0].time * 100.0)
+    assert result.skipped[0] > 0 and float(frames.diff().max()) > 5  # steps over more than max_gap frames
+    assert not result.trajectories[0].diagnostics["new_segment"].any()

@@ -76,7 +76,7 @@ class ReceiverProcess:
         if self.finished:
             mailbox.finish()
         for character, count in self._skipped_now.items():
-            mailbox.skipped[character] = mailbox.skipped.get(character, 0) + count
+            mailbox.count_skipped(character, count)
         for sample in samples:
             mailbox.put(sample)
         return True

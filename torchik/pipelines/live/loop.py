@@ -42,6 +42,8 @@ class Mailbox:
         self.queues: dict[int, deque] = {}
         self.skipped: dict[int, int] = {}
         self.last_put: dict[int, float] = {}  # per character, when its newest sample came in
+        self.unstepped: dict[int, int] = {}  # per character, samples stepped over since its last take
+        self.last_skips: dict[int, int] = {}  # of the characters the last take gave, those samples
         self.condition = threading.Condition()
         self.finished = False  # the source ended
 
@@ -50,10 +52,15 @@ class Mailbox:
             queue = self.queues.setdefault(sample.character, deque())
             if len(queue) >= self.backlog:
                 queue.popleft()
-                self.skipped[sample.character] = self.skipped.get(sample.character, 0) + 1
+                self.count_skipped(sample.character, 1)
             queue.append(sample)
             self.last_put[sample.character] = time.perf_counter()
             self.condition.notify()
+
+    def count_skipped(self, character: int, count: int) -> None:
+        """`count` samples of the character stepped over before they reached the mailbox (or in it)."""
+        self.skipped[character] = self.skipped.get(character, 0) + count
+        self.unstepped[character] = self.unstepped.get(character, 0) + count
 
     def finish(self) -> None:
         with self.condition:
@@ -70,7 +77,9 @@ class Mailbox:
                 remaining = deadline - time.perf_counter()
                 if remaining <= 0 or not self.condition.wait(remaining):
                     break
-            return {c: q.popleft() for c, q in self.queues.items() if q}
+            got = {c: q.popleft() for c, q in self.queues.items() if q}
+            self.last_skips = {c: self.unstepped.pop(c, 0) for c in got}
+            return got
 
 
 @dataclass
@@ -134,7 +143,7 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
             now = time.perf_counter()
             if got:
                 assert source.rate is not None
-                loop.step(got, source.rate, lambda: _counters(source, mailbox, loop))
+                loop.step(got, source.rate, lambda: _counters(source, mailbox, loop), mailbox.last_skips)
             elif mailbox.finished:
                 break
             if now - last_check >= min(0.05, options.stall_s / 4):  # not every step: a look at every character
@@ -226,9 +235,10 @@ class _Loop:
             out.publisher.rate = out.publisher.rate or rate
             self.clock_offset = pylsl().local_clock() - time.perf_counter()
 
-    def step(self, got: dict[int, Sample], rate: float, counters) -> None:
+    def step(self, got: dict[int, Sample], rate: float, counters, skips: dict[int, int] | None = None) -> None:
         """One step of every active character towards its sample in `got` (characters not yet in the
-        batch join it). counters: a function giving the live counters (for the viewer)."""
+        batch join it). counters: a function giving the live counters (for the viewer); skips: per
+        character, the samples stepped over since its last step."""
         if self.human is None:
             self._start(next(iter(got.values())), rate)
         assert self.human is not None and self.selection is not None  # started
@@ -242,7 +252,8 @@ class _Loop:
         present = np.fromiter((s is not None for s in samples), bool, len(samples))
         given = [s for s in samples if s is not None]
         frames = np.fromiter((s.frame for s in given), np.int64, len(given))
-        dt = self._time_steps(present, frames)
+        skipped = np.fromiter(((skips or {}).get(c, 0) for c in self.active + joining), np.int64, len(samples))
+        dt = self._time_steps(present, frames, skipped[present])
         rows = None if len(given) == len(samples) else torch.from_numpy(np.flatnonzero(present))
         characters = self.characters[present]
         if retarget is None or robot_targets is None or self.robot_history is None:
@@ -278,14 +289,23 @@ class _Loop:
         done = publisher.publish(characters[publishable].tolist(), publisher.values(state, rows), stamps[publishable])
         self.latency.append(done - arrival[publishable])
 
-    def _time_steps(self, present: np.ndarray, frames: np.ndarray):
+    def _time_steps(self, present: np.ndarray, frames: np.ndarray, skipped: np.ndarray):
         """None (the nominal dt) when every character moved on by one frame, else dt [B] from the
-        frame counters (a character without a sample, or at its first: the nominal dt)."""
+        frame counters (a character without a sample, or at its first: the nominal dt). Frames the
+        loop stepped over (`skipped` [m] per character with a sample) are no gap in the stream: a
+        character that fell behind moves on less than max_gap nominal steps at once, from where it
+        is, instead of restarting from the zero pose (which made a slow loop slower: a batch of
+        restarts every step). Gaps in the stream itself longer than max_gap still restart it."""
         previous = self.last_frame[present]
         gaps = np.ones(len(present))
         gaps[present] = np.where(previous >= 0, frames - previous, 1)
         if (gaps == 1).all():
             return None
+        own = gaps.copy()
+        own[present] -= skipped
+        max_gap = self.settings.max_gap
+        within = max(1.0, np.ceil(max_gap) - 1)  # whole frames, clear of the tracker's own gap test
+        gaps = np.where(own > max_gap, gaps, np.minimum(gaps, within))
         return torch.from_numpy(gaps / self.rate).to(self.model.dtype)
 
     def _join(self, joining: list[int], targets, robot_targets) -> None:
