@@ -15,8 +15,16 @@ at 100 Hz with p99 <= 10 ms.
     python experiments/live_latency.py --only 1@240 --duration 10      # one setting, quickly
     python experiments/live_latency.py --duration 5 --json live_latency.json
 
-Beside the latency it prints the tracker's step time (median, p99) of the batch: at 64 characters
-the step itself takes most of a 100 Hz frame on one core, which bounds the latency from below.
+    python experiments/live_latency.py --only 1@240 --compile --warm-up 30 --duration 10
+                  # the step replayed compiled; the capture (seconds) falls in the warm-up
+    python experiments/live_latency.py --only 64@100 --receiver thread --duration 10
+                  # received in a thread of the tracker's process, as before the receiver process
+
+Beside the latency it prints the tracker's step time (median, p99) of the batch, the frames missed
+(stepped over or lost) after the warm-up, and the CPU seconds of the tracker's thread (set-up
+included), of the receiver (its process, or the tracker process's other threads) and of the
+replay: at 64 characters the step itself takes a 100 Hz frame on one core (some 10 ms eager, 8 ms
+compiled), which bounds the latency from below.
 """
 
 from __future__ import annotations

@@ -64,7 +64,7 @@ class ReceiverProcess:
         self.skipped: dict[int, int] = {}
         self._skipped_now: dict[int, int] = {}  # what the last message adds to `skipped`
         self.finished = False
-        self.serving_cpu_s: float | None = None  # the receiver's CPU seconds from its start to its end
+        self.serving_cpu_s: float | None = None  # the receiver's CPU seconds from its first datagram to its end
 
     def deliver(self, mailbox, timeout: float) -> bool:
         """Wait up to `timeout` for the receiver's next message and put its samples into `mailbox`
@@ -134,7 +134,7 @@ def _serve(url: Url, rate: float | None, position_scale: float, backlog: int, bo
     from .mvn_source import MvnSource
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the tracker's, which then closes the source
-    start = time.process_time()
+    start: float | None = None  # CPU time at the first datagram: the imports before it are not the stream's
     source = MvnSource(url, rate, position_scale=position_scale, bound=bound)
     queues: dict[int, deque] = {}
     skipped: dict[int, int] = {}
@@ -152,6 +152,7 @@ def _serve(url: Url, rate: float | None, position_scale: float, backlog: int, bo
                 except EOFError:  # the tracker is gone
                     return
             if source.socket.fileno() in ready:
+                start = time.process_time() if start is None else start
                 for sample in source.receive(0.0):
                     queue = queues.setdefault(sample.character, deque())
                     if len(queue) >= backlog:
@@ -162,7 +163,8 @@ def _serve(url: Url, rate: float | None, position_scale: float, backlog: int, bo
                 given = [s for queue in queues.values() for s in queue]
                 messages.send(("samples", source.rate, dataclasses.astuple(source.stats), skipped, pack(given)))
                 queues, skipped, credit = {}, {}, False
-        messages.send(("end", source.rate, dataclasses.astuple(source.stats), skipped, time.process_time() - start))
+        messages.send(("end", source.rate, dataclasses.astuple(source.stats), skipped,
+                       None if start is None else time.process_time() - start))
     except BrokenPipeError:  # the tracker is gone
         pass
     finally:
