@@ -15,8 +15,16 @@ at 100 Hz with p99 <= 10 ms.
     python experiments/live_latency.py --only 1@240 --duration 10      # one setting, quickly
     python experiments/live_latency.py --duration 5 --json live_latency.json
 
-Beside the latency it prints the tracker's step time (median, p99) of the batch: at 64 characters
-the step itself takes most of a 100 Hz frame on one core, which bounds the latency from below.
+    python experiments/live_latency.py --only 1@240 --compile --warm-up 30 --duration 10
+                  # the step replayed compiled; the capture (seconds) falls in the warm-up
+    python experiments/live_latency.py --only 64@100 --receiver thread --duration 10
+                  # received in a thread of the tracker's process, as before the receiver process
+
+Beside the latency it prints the tracker's step time (median, p99) of the batch, the frames missed
+(stepped over or lost) after the warm-up, and the CPU seconds of the tracker's thread (set-up
+included), of the receiver (its process, or the tracker process's other threads) and of the
+replay: at 64 characters the step itself takes a 100 Hz frame on one core (some 10 ms eager, 8 ms
+compiled), which bounds the latency from below.
 """
 
 from __future__ import annotations
@@ -34,7 +42,8 @@ SETTINGS = ((1, 60.0), (1, 120.0), (1, 240.0), (8, 100.0), (64, 100.0))  # (char
 WARM_UP_S = 1.0
 
 
-def _replay(port: int, characters: int, rate: float, duration: float) -> None:
+def _replay(port: int, characters: int, rate: float, duration: float, cpu) -> None:
+    """cpu: a shared double, set to the CPU seconds the replay itself took (the walk's generation left out)."""
     torch.set_num_threads(1)
     from torchik.live.sample import Url
     from torchik.method.models import TRACKED_LINKS, load_model
@@ -42,35 +51,59 @@ def _replay(port: int, characters: int, rate: float, duration: float) -> None:
     from torchik.synthetic.scenarios import scenario
 
     walk = scenario("walking", load_model("human66"), TRACKED_LINKS["human66"], duration=duration, rate=rate)
+    start = time.process_time()
     replay(walk, Url("udp", "127.0.0.1", port), characters=characters, lead_in_s=0.5)
+    cpu.value = time.process_time() - start
 
 
-def measure(characters: int, rate: float, duration: float) -> dict:
-    from torchik.live.mvn_source import MvnSource
-    from torchik.live.sample import Url
+def measure(characters: int, rate: float, duration: float, receiver: str = "process", compile: bool = False,
+            warm_up: float = WARM_UP_S) -> dict:
+    """One setting's latency, skips and step times after `warm_up` s, and the CPU seconds of the
+    tracker's thread (set-up included), the receiver (its process from its first datagram, or the
+    other threads of the tracker's process) and the replay (streaming only)."""
+    from torchik.live.sources import open_source
     from torchik.method.models import TRACKED_LINKS, load_model
+    from torchik.method.settings import TrackerSettings
     from torchik.pipelines.live import LiveOptions, Publisher, Selection, track_live
 
     model = load_model("human66")
     links = TRACKED_LINKS["human66"]
-    source = MvnSource(Url("udp", "127.0.0.1", 0))
-    sender = multiprocessing.get_context("spawn").Process(
-        target=_replay, args=(source.address[1], characters, rate, duration + WARM_UP_S))
+    source = open_source("udp://127.0.0.1:0", receiver_process=receiver == "process")
+    context = multiprocessing.get_context("spawn")
+    replay_cpu = context.Value("d", float("nan"))
+    sender = context.Process(target=_replay, args=(source.address[1], characters, rate, duration + warm_up, replay_cpu))
     sender.start()
     publisher = Publisher(f"torchik-latency-{characters}-{rate:g}", model, rate=rate)
-    result = track_live(source, model, lambda names: Selection.build(names, links), publisher=publisher,
-                        options=LiveOptions(backlog=1, stop_when_idle_s=1.0, keep_states=False))
+    thread_start, process_start = time.thread_time(), time.process_time()
+    result = track_live(source, model, lambda names: Selection.build(names, links), TrackerSettings(compile=compile),
+                        publisher=publisher, options=LiveOptions(backlog=1, stop_when_idle_s=1.0, keep_states=False))
+    tracker_cpu, process_cpu = time.thread_time() - thread_start, time.process_time() - process_start
     sender.join()
+    kept = lambda values: values[int(len(values) * warm_up / (duration + warm_up)):]  # noqa: E731
     # the warm-up's share of the published samples left out (by count, not by frames: samples the
     # tracker stepped over were never published, so the frame count would leave out too many)
-    latency = result.latency[int(len(result.latency) * WARM_UP_S / (duration + WARM_UP_S)):] * 1e3
-    return dict(characters=characters, rate_hz=rate, duration_s=duration, published=int(len(result.latency)),
-                samples=result.source_stats["samples"], skipped=sum(result.skipped.values()),
+    latency = kept(result.latency) * 1e3
+    steps = kept(result.step_time) * 1e3
+    return dict(characters=characters, rate_hz=rate, duration_s=duration, receiver=receiver, compile=compile,
+                published=int(len(result.latency)), samples=result.source_stats["samples"],
+                skipped=sum(result.skipped.values()), missed_after_warm_up=_missed(result, warm_up),
                 lost=result.source_stats["lost"],
                 latency_ms=dict(p50=float(np.median(latency)), p99=float(np.quantile(latency, 0.99)),
                                 max=float(latency.max())) if len(latency) else None,
-                step_ms_median=float(np.median(result.step_time) * 1e3) if len(result.step_time) else None,
-                step_ms_p99=float(np.quantile(result.step_time, 0.99) * 1e3) if len(result.step_time) else None)
+                step_ms_median=float(np.median(steps)) if len(steps) else None,
+                step_ms_p99=float(np.quantile(steps, 0.99)) if len(steps) else None,
+                cpu_s=dict(tracker_thread=tracker_cpu, replay=replay_cpu.value,
+                           receiver=getattr(source, "serving_cpu_s", None) or process_cpu - tracker_cpu))
+
+
+def _missed(result, warm_up: float) -> int:
+    """Frames not stepped to after the warm-up (stepped over or lost), from every character's steps."""
+    missed = 0
+    for time_s, _ in result.characters.values():
+        frames = np.round(time_s.numpy() * result.rate).astype(np.int64)
+        after = frames[frames >= frames[0] + warm_up * result.rate]
+        missed += int((np.diff(after) - 1).sum()) if len(after) > 1 else 0
+    return missed
 
 
 def main() -> None:
@@ -79,18 +112,28 @@ def main() -> None:
     parser.add_argument("--only", metavar="N@HZ", action="append",
                         help="run only these settings, e.g. --only 1@240 --only 64@100")
     parser.add_argument("--json", metavar="FILE", help="write the results here")
+    parser.add_argument("--receiver", choices=("process", "thread"), default="process",
+                        help="receive in a process of its own (default, as torchik live) or in a thread")
+    parser.add_argument("--compile", action="store_true", help="the tracker's step replayed compiled, as torchik "
+                        "live --compile (captured at the third step: give --warm-up the seconds this takes)")
+    parser.add_argument("--warm-up", type=float, default=WARM_UP_S, metavar="S",
+                        help=f"seconds left out at the start (default {WARM_UP_S:g})")
     args = parser.parse_args()
+    # one intra-op thread: the per-step tensors are small, and a second thread would only compete
+    # with the receiver and the replay for the two cores of the machine this was written on
     torch.set_num_threads(1)
     settings = SETTINGS if not args.only else [(int(n), float(hz)) for n, hz in (s.split("@") for s in args.only)]
     results = []
     for characters, rate in settings:
-        r = measure(characters, rate, args.duration)
+        r = measure(characters, rate, args.duration, args.receiver, args.compile, args.warm_up)
         results.append(r)
-        lat = r["latency_ms"] or {}
+        lat, cpu = r["latency_ms"] or {}, r["cpu_s"]
         print(f"{characters:3d} character(s) at {rate:5.0f} Hz: latency p50 {lat.get('p50', float('nan')):6.2f} ms, "
               f"p99 {lat.get('p99', float('nan')):6.2f} ms, max {lat.get('max', float('nan')):7.2f} ms; "
-              f"skipped {r['skipped']} of {r['samples']} samples; step median {r['step_ms_median']:.2f} ms, "
-              f"p99 {r['step_ms_p99']:.2f} ms", flush=True)
+              f"skipped {r['skipped']} of {r['samples']} samples ({r['missed_after_warm_up']} frames missed after "
+              f"the warm-up); step median {r['step_ms_median']:.2f} ms, p99 {r['step_ms_p99']:.2f} ms; CPU s: "
+              f"tracker {cpu['tracker_thread']:.1f}, receiver {cpu['receiver']:.1f}, replay {cpu['replay']:.1f}",
+              flush=True)
     if args.json:
         with open(args.json, "w") as f:
             json.dump(dict(machine=platform.processor() or platform.machine(), cpus=torch.get_num_threads(),

@@ -1,7 +1,7 @@
 """The live loop over loopback UDP (torchik/pipelines/live.py with torchik/pipelines/replay.py): a
 fault-free replay tracks to the same estimates as `track` on the data as the wire carried it;
-with faults it finishes, stays as accurate and counts exactly what was injected; two characters
-are tracked as one batch."""
+with faults it finishes, stays as accurate and counts exactly what was injected, whether received
+in a thread or in a process of its own; two characters are tracked as one batch."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import torch
 from torchik.io import read
 from torchik.io.maps import load_map, map_recording
 from torchik.live.mvn_source import MvnSource
+from torchik.live.receiver import ReceiverProcess
 from torchik.live.sample import Url
 from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.pipelines.live import LiveOptions, Selection, track_live
@@ -42,10 +43,13 @@ def clean_walk(model, walking):
     return live_run(model, walking)[0]
 
 
-def live_run(model, recording, link_map=None, faults=None, characters=1, speed=3.0):
-    """Replay `recording` to a live session on an ephemeral loopback port; the session's result
-    and the replay's log. Every sample is queued (backlog) so that the run is deterministic."""
-    source = MvnSource(Url("udp", "127.0.0.1", 0))
+def live_run(model, recording, link_map=None, faults=None, characters=1, speed=3.0, receiver_process=False):
+    """Replay `recording` to a live session on an ephemeral loopback port (received in a thread, or
+    in a process of its own); the session's result and the replay's log. Every sample is queued
+    (backlog) so that the run is deterministic."""
+    backlog = 100000
+    source = ReceiverProcess(Url("udp", "127.0.0.1", 0), backlog=backlog) if receiver_process else \
+        MvnSource(Url("udp", "127.0.0.1", 0))
     port = source.address[1]
     logs = []
     sender = threading.Thread(target=lambda: logs.append(
@@ -53,7 +57,7 @@ def live_run(model, recording, link_map=None, faults=None, characters=1, speed=3
     sender.start()
     links = TRACKED_LINKS["human66"]
     result = track_live(source, model, lambda names: Selection.build(names, links, link_map),
-                        options=LiveOptions(backlog=100000, stop_when_idle_s=0.4))
+                        options=LiveOptions(backlog=backlog, stop_when_idle_s=0.4))
     sender.join()
     return result, logs[0]
 
@@ -79,10 +83,12 @@ def test_a_fault_free_replay_of_a_generated_walk_tracks_as_track_does(model, wal
     torch.testing.assert_close(result.trajectories[0].joint_positions, offline.joint_positions, rtol=0, atol=1e-9)
 
 
-def test_with_loss_reordering_and_duplicates_it_finishes_as_accurate_and_counts_what_was_injected(model, walking,
-                                                                                                  clean_walk):
+@pytest.mark.parametrize("receiver_process", [False, True], ids=["thread", "process"])
+def test_with_loss_reordering_and_duplicates_it_finishes_as_accurate_and_counts_what_was_injected(
+        model, walking, clean_walk, receiver_process):
     clean = clean_walk
-    faulty, log = live_run(model, walking, faults=Faults(loss=0.05, reorder=0.02, duplicate=0.02, seed=3))
+    faulty, log = live_run(model, walking, faults=Faults(loss=0.05, reorder=0.02, duplicate=0.02, seed=3),
+                           receiver_process=receiver_process)
     assert log.lost and log.reordered and log.duplicated
     stats = faulty.source_stats
     assert stats["lost"] == log.lost + log.reordered
@@ -103,3 +109,17 @@ def test_two_characters_stream_at_once_and_are_tracked_as_one_batch(model, walki
     first, second = (result.trajectories[c].joint_positions[:, 0] for c in (0, 1))
     assert not torch.allclose(first, second)  # each its own phase of the walk
     assert all(r["mnte"]["median"] < 1e-2 for r in result.report(transient=0.5)["characters"].values())
+
+
+def test_frames_the_loop_steps_over_do_not_restart_a_character_from_the_zero_pose(model, walking):
+    source = MvnSource(Url("udp", "127.0.0.1", 0))
+    # as fast as the socket takes it: the loop steps over most frames, many more than max_gap at once
+    sender = threading.Thread(target=replay, args=(walking, Url("udp", "127.0.0.1", source.address[1]), float("inf")),
+                              kwargs=dict(lead_in_s=0.1))
+    sender.start()
+    result = track_live(source, model, lambda names: Selection.build(names, TRACKED_LINKS["human66"]),
+                        options=LiveOptions(backlog=1, stop_when_idle_s=0.4))
+    sender.join()
+    frames = torch.round(result.trajectories[0].time * 100.0)
+    assert result.skipped[0] > 0 and float(frames.diff().max()) > 5  # steps over more than max_gap frames
+    assert not result.trajectories[0].diagnostics["new_segment"].any()

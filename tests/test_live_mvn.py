@@ -109,6 +109,22 @@ def test_malformed_datagrams_are_counted_and_skipped_and_the_stream_goes_on():
     assert assembler.stats.malformed == len(bad)
 
 
+def test_datagrams_parsed_as_one_batch_give_the_samples_and_counts_of_one_at_a_time():
+    rng = np.random.default_rng(1)
+    good = frame(1) + frame(2, split=5) + frame(2)[:1] + frame(4) + frame(3) + frame(5, character=2)
+    bad = [good[1][:30], b"XXTP" + good[1][4:], bytes(rng.integers(0, 256, 300, dtype=np.uint8)),
+           header(b"22", 6, 0x80, 1, 0, 0, 44) + struct.pack(">i", 99) + struct.pack(">10f", 1, 0, 0, 0, 0, 0, 0, 0, 0, 0)]
+    stream = good[:4] + bad + good[4:] + frame(6) + frame(6, character=2)
+    one, batch = Assembler(), Assembler()
+    singly = feed(one, stream)
+    together = batch.add_batch(stream, [0.0] * len(stream))
+    assert [(s.character, s.frame) for s in together] == [(s.character, s.frame) for s in singly]
+    for a, b in zip(singly, together):
+        np.testing.assert_array_equal(a.quaternion, b.quaternion)
+        np.testing.assert_array_equal(a.position, b.position)
+    assert batch.stats == one.stats and one.stats.malformed == len(bad)
+
+
 def test_stream_urls_are_checked_with_a_message_that_shows_valid_ones():
     assert parse_url("udp://:9763").port == 9763 and parse_url("lsl://mocap").name == "mocap"
     for text in ("http://x", "udp://host:99999", "lsl://", "udp://h:1/path"):

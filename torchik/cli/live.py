@@ -50,8 +50,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--gain", type=float, default=TrackerSettings.position_gain,
                    help=f"K for positions and orientations, 1/s (default {TrackerSettings.position_gain:g})")
     p.add_argument("--backend", default=TrackerSettings.backend, choices=("auto", *BACKENDS))
-    p.add_argument("--compile", action="store_true", help="replay each subject's usual step compiled: several "
-                   "times faster per step, after a capture of seconds at its third step (tens the first time)")
+    p.add_argument("--compile", action="store_true", help="replay the batch's usual step compiled: several "
+                   "times faster per step at one character, after a capture at the third step of each batch size "
+                   "(seconds, tens the first time on a machine; the samples meanwhile are skipped, and counted)")
     p.add_argument("--device", default="cpu", help="torch device: cpu (default), cuda or cuda:N")
     p.add_argument("--retarget", choices=("icub",), help="also track iCub from the stream (human_to_icub map) and "
                    "publish and write iCub's joints instead of the human model's")
@@ -72,6 +73,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--report", metavar="JSON", help="write the report (counters, errors, latency) here at the end")
     p.add_argument("--backlog", type=int, default=1, metavar="N", help="samples queued per character before the "
                    "oldest is stepped over (default 1: always the newest)")
+    p.add_argument("--receiver", choices=("process", "thread"), default="process",
+                   help="receive a udp:// stream in a process of its own (default: the tracker then never waits for "
+                        "the receiver's Python) or in a thread of the tracker's")
     p.add_argument("--stall", type=float, default=1.0, metavar="S", help="a character silent for S seconds leaves "
                    "the batch until it comes back (default 1)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: Ctrl-C)")
@@ -92,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
 
     _check(args)
     device = torch_device(args.device)
-    source = open_source(args.source, args.rate, args.timeout, 0.01 if args.mvn_position_unit == "cm" else 1.0)
+    source = open_source(args.source, args.rate, args.timeout, 0.01 if args.mvn_position_unit == "cm" else 1.0,
+                         receiver_process=args.receiver == "process", backlog=args.backlog)
     if device.type == "cpu":
         torch.set_num_threads(1)  # small per-step tensors: extra threads only wait for each other
     model = load_model(args.model, device=device)

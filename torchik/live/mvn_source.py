@@ -5,6 +5,7 @@ they come, each with its arrival time, and joined into samples by the `Assembler
 from __future__ import annotations
 
 import errno
+import select
 import socket
 import time
 from typing import Iterator
@@ -21,10 +22,17 @@ class MvnSource:
     the first two samples (the first is held back until then). `close()` ends the iteration."""
 
     def __init__(self, url: Url, rate: float | None = None, receive_buffer: int = 1 << 22,
-                 position_scale: float = 1.0):
+                 position_scale: float = 1.0, bound: socket.socket | None = None):
+        """bound: a UDP socket this source's twin already bound to url (a receiver process reads
+        the socket its tracker bound: see `receiver.py`)."""
         self.url, self.rate = url, rate
         self.assembler = Assembler(position_scale)
         self._closed = False
+        self._held: list[Sample] = []  # samples held back until the rate is known
+        if bound is not None:
+            self.socket = bound
+            self.socket.settimeout(0.0)  # as below: a socket handed over comes back blocking
+            return
         try:
             if url.scheme == "udp":
                 self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -37,7 +45,8 @@ class MvnSource:
         except OSError as exc:
             reason = "the port is in use" if exc.errno == errno.EADDRINUSE else exc.strerror or str(exc)
             raise InputError(f"cannot listen on {url}: {reason}") from None
-        self.socket.settimeout(0.2)  # how soon close() is noticed
+        # UDP: read when select says so, until none is left; TCP: how soon close() is noticed
+        self.socket.settimeout(0.0 if url.scheme == "udp" else 0.2)
 
     @property
     def stats(self) -> SourceStats:
@@ -51,15 +60,33 @@ class MvnSource:
     def close(self) -> None:
         self._closed = True
 
-    def _datagrams(self) -> Iterator[tuple[bytes, float]]:
-        if self.url.scheme == "udp":
-            while not self._closed:
+    def receive(self, timeout: float, most: int = 1024) -> list[Sample]:
+        """UDP: the samples completed by the datagrams waiting on the socket (at most `most`),
+        waiting up to `timeout` for the first; parsed as one batch (`Assembler.add_batch`)."""
+        datas: list[bytes] = []
+        arrivals: list[float] = []
+        if select.select([self.socket], [], [], timeout)[0]:
+            while len(datas) < most:
                 try:
-                    data = self.socket.recv(65536)
-                except TimeoutError:
-                    continue
-                yield data, time.perf_counter()
-            return
+                    datas.append(self.socket.recv(65536))
+                except BlockingIOError:
+                    break
+                arrivals.append(time.perf_counter())
+        return self._rated(self.assembler.add_batch(datas, arrivals)) if datas else []
+
+    def _rated(self, samples: list[Sample]) -> list[Sample]:
+        """The samples to hand on: none until the rate is known (held back until then)."""
+        if self.rate is not None or not samples:
+            return samples
+        self._held += samples
+        self.rate = _estimate_rate(self._held)
+        if self.rate is None:
+            return []
+        held, self._held = self._held, []
+        return held
+
+    def _datagrams(self) -> Iterator[tuple[bytes, float]]:
+        """TCP: the datagrams as they come off the connection, each with its arrival time."""
         connection = None
         while connection is None and not self._closed:
             try:
@@ -94,19 +121,13 @@ class MvnSource:
         connection.close()
 
     def __iter__(self) -> Iterator[Sample]:
-        held: list[Sample] = []
         try:
+            if self.url.scheme == "udp":
+                while not self._closed:
+                    yield from self.receive(0.2)
+                return
             for data, arrival in self._datagrams():
-                for sample in self.assembler.add(data, arrival):
-                    if self.rate is None:
-                        held.append(sample)
-                        self.rate = _estimate_rate(held)
-                        if self.rate is None:
-                            continue
-                        yield from held
-                        held = []
-                    else:
-                        yield sample
+                yield from self._rated(self.assembler.add(data, arrival))
         finally:
             self.socket.close()
 

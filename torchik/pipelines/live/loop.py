@@ -42,6 +42,8 @@ class Mailbox:
         self.queues: dict[int, deque] = {}
         self.skipped: dict[int, int] = {}
         self.last_put: dict[int, float] = {}  # per character, when its newest sample came in
+        self.unstepped: dict[int, int] = {}  # per character, samples stepped over since its last take
+        self.last_skips: dict[int, int] = {}  # of the characters the last take gave, those samples
         self.condition = threading.Condition()
         self.finished = False  # the source ended
 
@@ -50,10 +52,15 @@ class Mailbox:
             queue = self.queues.setdefault(sample.character, deque())
             if len(queue) >= self.backlog:
                 queue.popleft()
-                self.skipped[sample.character] = self.skipped.get(sample.character, 0) + 1
+                self.count_skipped(sample.character, 1)
             queue.append(sample)
             self.last_put[sample.character] = time.perf_counter()
             self.condition.notify()
+
+    def count_skipped(self, character: int, count: int) -> None:
+        """`count` samples of the character stepped over before they reached the mailbox (or in it)."""
+        self.skipped[character] = self.skipped.get(character, 0) + count
+        self.unstepped[character] = self.unstepped.get(character, 0) + count
 
     def finish(self) -> None:
         with self.condition:
@@ -70,7 +77,9 @@ class Mailbox:
                 remaining = deadline - time.perf_counter()
                 if remaining <= 0 or not self.condition.wait(remaining):
                     break
-            return {c: q.popleft() for c, q in self.queues.items() if q}
+            got = {c: q.popleft() for c, q in self.queues.items() if q}
+            self.last_skips = {c: self.unstepped.pop(c, 0) for c in got}
+            return got
 
 
 @dataclass
@@ -111,8 +120,13 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
     joints)."""
     options = options or LiveOptions()
     mailbox = Mailbox(options.backlog)
-    receiver = threading.Thread(target=_receive, args=(source, mailbox), daemon=True, name="torchik-live-receiver")
-    receiver.start()
+    # a source that receives in a process of its own is polled from this thread: no second thread
+    # of this process then competes with the step for the GIL
+    deliver = getattr(source, "deliver", None)
+    receiver = None
+    if deliver is None:
+        receiver = threading.Thread(target=_receive, args=(source, mailbox), daemon=True, name="torchik-live-receiver")
+        receiver.start()
     loop = _Loop(model, settings or TrackerSettings(), selection_for, Outputs(publisher, viewer, retarget),
                  options.keep_states, getattr(source, "lsl_clock", False))
     start = last_progress = last_check = time.perf_counter()
@@ -122,11 +136,14 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
             # a source knows its rate before it yields its first sample (MVN estimates it from the
             # first time codes, LSL reads the stream's nominal rate)
             gather = options.gather_s if options.gather_s is not None else 0.5 / (source.rate or 100.0)
-            got = mailbox.take(loop.active, timeout=0.05, gather=gather)
+            if deliver is None:
+                got = mailbox.take(loop.active, timeout=0.05, gather=gather)
+            else:
+                got = _take_delivered(deliver, mailbox, loop.active, timeout=0.05, gather=gather)
             now = time.perf_counter()
             if got:
                 assert source.rate is not None
-                loop.step(got, source.rate, lambda: _counters(source, mailbox, loop))
+                loop.step(got, source.rate, lambda: _counters(source, mailbox, loop), mailbox.last_skips)
             elif mailbox.finished:
                 break
             if now - last_check >= min(0.05, options.stall_s / 4):  # not every step: a look at every character
@@ -144,7 +161,8 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
         interrupted = True
     finally:
         source.close()
-        receiver.join(timeout=2.0)
+        if receiver is not None:
+            receiver.join(timeout=2.0)
         if viewer is not None:
             viewer.close(_counters(source, mailbox, loop))
     return loop.result(source, mailbox, interrupted)
@@ -156,6 +174,19 @@ def _receive(source: Source, mailbox: Mailbox) -> None:
             mailbox.put(sample)
     finally:
         mailbox.finish()
+
+
+def _take_delivered(deliver, mailbox: Mailbox, active, timeout: float, gather: float) -> dict[int, Sample]:
+    """`Mailbox.take` for a source that delivers into the mailbox when asked (`ReceiverProcess`):
+    what has come is taken in first, then it waits as `take` does."""
+    deliver(mailbox, 0.0 if any(mailbox.queues.values()) else timeout)
+    if any(mailbox.queues.values()):
+        deadline = time.perf_counter() + gather
+        while not mailbox.finished and not all(mailbox.queues.get(c) for c in active):
+            remaining = deadline - time.perf_counter()
+            if remaining <= 0 or not deliver(mailbox, remaining):
+                break
+    return mailbox.take(active, timeout=0.0, gather=0.0)
 
 
 def _counters(source: Source, mailbox: Mailbox, loop: "_Loop") -> dict:
@@ -204,9 +235,10 @@ class _Loop:
             out.publisher.rate = out.publisher.rate or rate
             self.clock_offset = pylsl().local_clock() - time.perf_counter()
 
-    def step(self, got: dict[int, Sample], rate: float, counters) -> None:
+    def step(self, got: dict[int, Sample], rate: float, counters, skips: dict[int, int] | None = None) -> None:
         """One step of every active character towards its sample in `got` (characters not yet in the
-        batch join it). counters: a function giving the live counters (for the viewer)."""
+        batch join it). counters: a function giving the live counters (for the viewer); skips: per
+        character, the samples stepped over since its last step."""
         if self.human is None:
             self._start(next(iter(got.values())), rate)
         assert self.human is not None and self.selection is not None  # started
@@ -220,7 +252,8 @@ class _Loop:
         present = np.fromiter((s is not None for s in samples), bool, len(samples))
         given = [s for s in samples if s is not None]
         frames = np.fromiter((s.frame for s in given), np.int64, len(given))
-        dt = self._time_steps(present, frames)
+        skipped = np.fromiter(((skips or {}).get(c, 0) for c in self.active + joining), np.int64, len(samples))
+        dt = self._time_steps(present, frames, skipped[present])
         rows = None if len(given) == len(samples) else torch.from_numpy(np.flatnonzero(present))
         characters = self.characters[present]
         if retarget is None or robot_targets is None or self.robot_history is None:
@@ -256,14 +289,23 @@ class _Loop:
         done = publisher.publish(characters[publishable].tolist(), publisher.values(state, rows), stamps[publishable])
         self.latency.append(done - arrival[publishable])
 
-    def _time_steps(self, present: np.ndarray, frames: np.ndarray):
+    def _time_steps(self, present: np.ndarray, frames: np.ndarray, skipped: np.ndarray):
         """None (the nominal dt) when every character moved on by one frame, else dt [B] from the
-        frame counters (a character without a sample, or at its first: the nominal dt)."""
+        frame counters (a character without a sample, or at its first: the nominal dt). Frames the
+        loop stepped over (`skipped` [m] per character with a sample) are no gap in the stream: a
+        character that fell behind moves on less than max_gap nominal steps at once, from where it
+        is, instead of restarting from the zero pose (which made a slow loop slower: a batch of
+        restarts every step). Gaps in the stream itself longer than max_gap still restart it."""
         previous = self.last_frame[present]
         gaps = np.ones(len(present))
         gaps[present] = np.where(previous >= 0, frames - previous, 1)
         if (gaps == 1).all():
             return None
+        own = gaps.copy()
+        own[present] -= skipped
+        max_gap = self.settings.max_gap
+        within = max(1.0, np.ceil(max_gap) - 1)  # whole frames, clear of the tracker's own gap test
+        gaps = np.where(own > max_gap, gaps, np.minimum(gaps, within))
         return torch.from_numpy(gaps / self.rate).to(self.model.dtype)
 
     def _join(self, joining: list[int], targets, robot_targets) -> None:
