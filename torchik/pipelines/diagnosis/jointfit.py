@@ -19,11 +19,11 @@ A parameter moves only along the directions its fit identifies (Effect.direction
 
 The step is taken if, re-tracked, what it explains of the whitened residual on the test half is
 significant by the loop's own test (effect.score with its Q moved directions as parameters, above
-SIGNIFICANT): the loop's fits work on the channel where each effect shows best, low-passed, and a
-step that explains no more than the noise would move them by chance. Otherwise the loop's values
-stay and `Joint.note` says so (and whether the step raised the test half's residual). Model
-effects (a missing axis, a moved limit) stay as fitted: they change the model, and their variants
-would not track in one batch.
+SIGNIFICANT; re-tracked only where the linearisation predicts it is): the loop's fits work on the
+channel where each effect shows best, low-passed, and a step that explains no more than the noise
+would move them by chance. Otherwise the loop's values stay and `Joint.note` says so (and whether
+the step raised the test half's residual). Model effects (a missing axis, a moved limit) stay as
+fitted: they change the model, and their variants would not track in one batch.
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ from .subject import Subject, analyse_subjects
 
 CHANNELS = ("r", "u", "e", "r_p")  # the residuals the measurement effects act on (see Analysis)
 STEP = 0.5  # the finite-difference step, in standard errors of the loop's fit
+VARIANT_SAMPLES = 2  # the sample times of the perturbed recordings' task Jacobian, which the fit does not use
 
 
 @dataclass
@@ -61,6 +62,7 @@ class Joint:
     gain: float = float("nan")  # the step's held-out score (effect.score)
     directions: int = 0  # Q: the directions the step moves (the parameters the data determine)
     scale: torch.Tensor | None = None  # [4] the channels' rms at the loop's values (residual)
+    linearised: bool = False  # test_after and gain as the linearisation predicts them (not re-tracked)
 
     @property
     def note(self) -> str:
@@ -69,16 +71,19 @@ class Joint:
             return (f"parameters and standard errors from the joint fit: {what}; the test half's residual "
                     f"{self.test_before:.4g} -> {self.test_after:.4g} (held-out score {self.gain:.0f})")
         why = (f"raised the test half's residual from {self.test_before:.4g} to {self.test_after:.4g}"
+               f"{' (linearised)' if self.linearised else ''}"
                if self.test_after > self.test_before else
-               f"explained too little of the test half's residual ({self.test_before:.4g} -> {self.test_after:.4g}, "
-               f"held-out score {self.gain:.1f}, not above {SIGNIFICANT:g})")
+               f"explained too little of the test half's residual ({self.test_before:.4g} -> {self.test_after:.4g}"
+               f"{', linearised' if self.linearised else ''}, held-out score {self.gain:.1f}, not above "
+               f"{SIGNIFICANT:g})")
         return (f"standard errors from the joint fit ({what}), parameters from the loop's sequential fit: the "
                 f"joint step {why}, so it was not taken")
 
     def to_json(self) -> dict:
         return dict(names=self.names, sequential=self.theta.tolist(), step=self.delta.tolist(),
                     stderr=self.stderr.tolist(), conditional_stderr=self.conditional.tolist(),
-                    test_before=self.test_before, test_after=self.test_after, gain=self.gain, kept=self.kept,
+                    test_before=self.test_before, test_after=self.test_after, linearised=self.linearised,
+                    gain=self.gain, kept=self.kept,
                     note=self.note)
 
 
@@ -189,10 +194,12 @@ def refit(subjects: Sequence[Subject], links, gain: float, progress: bool, max_s
     subjects whose step is kept end with their effects moved, re-tracked and analysed. The variants of
     all subjects track as one batch per model, and so do the subjects moved by their steps."""
     plans = [plan(s) for s in subjects]
-    analyse_subjects([v for p in plans if p is not None for v in p.variants], links, gain, progress, max_samples)
+    # only their residuals are read: the task Jacobian at a handful of samples, not max_samples (a fifth of the cost)
+    analyse_subjects([v for p in plans if p is not None for v in p.variants], links, gain, progress, VARIANT_SAMPLES)
     steps = [None if p is None else _step(p) for p in plans]
-    analyse_subjects([step[0] for step in steps if step is not None], links, gain, progress,
-                     max_samples)
+    # a step that its linearisation says explains too little is not worth re-tracking (a second of a 12 s recording)
+    promising = [step for step in steps if step is not None and step[1].gain > SIGNIFICANT]
+    analyse_subjects([moved for moved, *_ in promising], links, gain, progress, max_samples)
     for p, step in zip(plans, steps):
         if p is not None and step is not None:
             _settle(p.subject, *step)
@@ -225,19 +232,24 @@ def _step(p: Plan) -> tuple[Subject, Joint, torch.Tensor]:
     # a component the directions leave out keeps the loop's error (which says it is not identified)
     outside = (1.0 - B.square().sum(-1)).clamp(min=0.0) * torch.from_numpy(sd).to(J.dtype).square()
     stderr, conditional = (cov.diagonal().clamp(min=0) + outside).sqrt(), (conditional + outside).sqrt()
+    predicted = left[~rows]  # the test half's residual after the step, as the linearisation gives it
     joint = Joint(names, theta, delta.numpy(), stderr.numpy(), conditional.numpy(),
-                  float(rho[~rows].square().mean()), float("nan"), False, scale=scale, directions=basis.shape[1])
+                  float(rho[~rows].square().mean()), float(predicted.square().mean()), False,
+                  score(rho[~rows], predicted, k=basis.shape[1]).score, basis.shape[1], scale)
     return moved, joint, rho[~rows]
 
 
 def _settle(s: Subject, moved: Subject, joint: Joint, before: torch.Tensor) -> None:
     """Take the step if what it explains of the test half's residual (`before` [n_test, D]) is
     significant (else keep the loop's values); the joint standard errors either way."""
-    analysis, b = moved.current
-    _, test = halves(analysis.time)
-    after = residual(analysis, b, test, joint.scale)[0]
-    joint.test_after = float(after.square().mean())
-    joint.gain = score(before, after, k=joint.directions).score
+    if moved.analysis is not None:  # re-tracked: the step's gain as it is, not as linearised
+        analysis, b = moved.current
+        _, test = halves(analysis.time)
+        after = residual(analysis, b, test, joint.scale)[0]
+        joint.test_after = float(after.square().mean())
+        joint.gain = score(before, after, k=joint.directions).score
+    else:
+        joint.linearised = True
     joint.kept = joint.gain > SIGNIFICANT
     theta = joint.theta + joint.delta if joint.kept else joint.theta
     for e, params, stderr in zip(s.effects, _unstack(s.effects, theta), _unstack(s.effects, joint.stderr)):
