@@ -8,6 +8,8 @@ Properties:
   step is taken;
 - the joint standard errors of the correlated pair are larger than with the other held (and than
   each one's own fit gives), and the unrelated effect's are not;
+- kept at the values the loop's own fits settle on, the step is not significant on the test half and
+  is not taken: the values stay, with the joint standard errors;
 - a misalignment moves only along the directions its fit identifies;
 - the report (its first lines, the table's note, the JSON and the calibration) says where the values
   and standard errors come from, and says so when the step was not taken.
@@ -25,6 +27,7 @@ from conftest import kept_subject
 
 from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.diagnosis import jointfit
+from torchik.pipelines.diagnosis.effect import SIGNIFICANT
 from torchik.pipelines.diagnosis.gyro import GyroBias
 from torchik.pipelines.diagnosis.loop import Diagnosis
 from torchik.pipelines.diagnosis.placement import HeadingDrift, Misalignment
@@ -128,3 +131,21 @@ def test_the_report_says_when_the_sequential_values_were_kept(fitted):
                              test_before=1.0, test_after=1.5, kept=False)
     text = "\n".join(answer(_diagnosis(s, refused, recording)))
     assert "parameters from the loop's sequential fit" in text and "not taken" in text
+
+
+def test_a_step_that_explains_nothing_more_leaves_the_loop_values(fitted):
+    """The injected effects kept at the values the loop's own fits settle on: the joint step finds
+    nothing significant to add, the values stay, and the effects carry the joint standard errors."""
+    s, _, _, recording = fitted
+    settled = [type(e)(e.kind, e.target, dict(e.params)) for e in s.effects]  # the joint values: near the truth
+    again = kept_subject(s.model, s.urdf, recording, settled, LINKS)
+    for e in settled:
+        update = again.refit(e)
+        assert update is not None
+        e.refine(update)
+    values = jointfit._vector(settled)[0]
+    joint, = jointfit.refit([again], LINKS, 20.0, False, 300)
+    assert joint is not None and not joint.kept and joint.gain <= SIGNIFICANT
+    np.testing.assert_array_equal(jointfit._vector(settled)[0], values)
+    np.testing.assert_allclose(jointfit._vector(settled)[1], joint.stderr)
+    assert "parameters from the loop's sequential fit" in joint.note
