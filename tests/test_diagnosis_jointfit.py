@@ -149,3 +149,10 @@ def test_a_step_that_explains_nothing_more_leaves_the_loop_values(fitted):
     np.testing.assert_array_equal(jointfit._vector(settled)[0], values)
     np.testing.assert_allclose(jointfit._vector(settled)[1], joint.stderr)
     assert "parameters from the loop's sequential fit" in joint.note
+
+
+def test_the_finite_difference_step_ignores_an_unidentified_components_error():
+    """A misalignment identified about (0.6, 0.8, 0) whose z component's error is meaningless (huge):
+    the step along the identified direction is the smaller of the errors of x and y."""
+    basis = np.array([[0.6], [0.8], [0.0]])
+    np.testing.assert_allclose(jointfit.step_scale(basis, np.array([0.02, 0.01, 1e6])), [0.01])

@@ -183,10 +183,18 @@ def plan(s: Subject) -> Plan | None:
     theta, sd, names, basis = _vector(s.effects)
     if not names:
         return None
-    # a step of STEP standard errors along each direction (the loop's errors, projected on it)
-    h = np.maximum(STEP * np.sqrt(np.square(basis).T @ np.square(sd)), 1e-6 * max(float(np.abs(theta).max()), 1.0))
+    h = STEP * step_scale(basis, sd)
+    h = np.where(np.isfinite(h) & (h > 0), h, 1e-6 * max(float(np.abs(theta).max()), 1.0))
     variants = [_rebuild(s, _set(s.effects, theta + h[q] * basis[:, q])) for q in range(basis.shape[1])]
     return Plan(s, theta, sd, names, basis, h, variants)
+
+
+def step_scale(basis: np.ndarray, sd: np.ndarray) -> np.ndarray:
+    """[Q] the loop's standard error along each direction of `basis` [P, Q] (sd [P]): the smallest of
+    the components it mostly lies along (|basis| >= 0.5; a unit vector has one). Not their mix: the
+    error of a component the data do not determine is meaningless (a misalignment's), often huge."""
+    along = np.abs(basis) >= 0.5
+    return np.where(along, sd[:, None], np.inf).min(0)
 
 
 def refit(subjects: Sequence[Subject], links, gain: float, progress: bool, max_samples: int) -> list[Joint | None]:
