@@ -58,3 +58,20 @@ def cli(monkeypatch, capsys):
         return code, out, err
 
     return call
+
+
+def kept_subject(model, urdf: str, recording, kept, links):
+    """A subject of the diagnosis loop that kept `kept` (in that order) on `recording`: the recording
+    corrected by them, tracked and analysed, each effect a step (errors before and after both the
+    current ones)."""
+    from torchik.pipelines.diagnosis.loop import Step, errors
+    from torchik.pipelines.diagnosis.subject import Subject, analyse_subjects
+
+    current = recording
+    for effect in kept:
+        current = effect.correct(current)
+    s = Subject(current, urdf, model, source=(recording, urdf))
+    analyse_subjects([s], links, 20.0, False, 300)
+    s.derived = s.current[0].derived[0]
+    s.steps = [Step(effect, errors(*s.current), errors(*s.current)) for effect in kept]
+    return s

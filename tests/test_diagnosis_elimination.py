@@ -16,15 +16,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import kept_subject
 
 from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.diagnosis import elimination
 from torchik.pipelines.diagnosis.effect import SIGNIFICANT
 from torchik.pipelines.diagnosis.gyro import GyroBias, StreamDelay
 from torchik.pipelines.diagnosis.joints import JointLimit, MissingDof
-from torchik.pipelines.diagnosis.loop import Diagnosis, Step, errors
+from torchik.pipelines.diagnosis.loop import Diagnosis
 from torchik.pipelines.diagnosis.report import answer
-from torchik.pipelines.diagnosis.subject import Subject, analyse_subjects
+from torchik.pipelines.diagnosis.subject import Subject
 from torchik.synthetic.scenarios import scenario
 
 LINKS = TRACKED_LINKS["human48"]
@@ -42,14 +43,7 @@ def biased(one_thread):
 
 def _subject(model, urdf, recording, kept) -> Subject:
     """A subject of the loop that kept `kept` (in that order) on `recording`, tracked and analysed."""
-    current = recording
-    for effect in kept:
-        current = effect.correct(current)
-    s = Subject(current, urdf, model, source=(recording, urdf))
-    analyse_subjects([s], LINKS, 20.0, False, 300)
-    s.derived = s.current[0].derived[0]
-    s.steps = [Step(effect, errors(*s.current), errors(*s.current)) for effect in kept]
-    return s
+    return kept_subject(model, urdf, recording, kept, LINKS)
 
 
 def _eliminate(s: Subject) -> None:

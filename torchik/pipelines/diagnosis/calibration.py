@@ -1,7 +1,8 @@
 """What a diagnosis leaves for `torchik track`: the calibration file and the augmented URDF.
 
 The calibration file (JSON, `format: torchik-calibration/1`) lists the measurement effects found,
-in the order they were added, each as `Effect.to_json()` writes it (kind, target, params, ...).
+in the order they were added, each as `Effect.to_json()` writes it (kind, target, params, ...), and
+`fit`: where the values and standard errors come from (the joint fit at the end, jointfit.py).
 Applying it undoes them in a recording of the same session, after the link map if there was one
 (its targets are the model's links):
 

@@ -234,6 +234,11 @@ class Effect:
         """The rms (rad) of what a per-sample effect moves (per_sample effects define it)."""
         return math.inf
 
+    def directions(self, name: str) -> np.ndarray:
+        """[size, k] the directions in which the data determine parameter `name` (its values flattened):
+        a joint fit moves it only along them (jointfit.py). All of them, unless the effect knows better."""
+        return np.eye(np.asarray(self.params[name]).size)
+
     def overlaps(self, other: "Effect") -> bool:
         """Whether the two would correct the same thing (same kind, same target or one of them on all)."""
         return self.kind == other.kind and (self.target == other.target or "all" in (self.target, other.target))

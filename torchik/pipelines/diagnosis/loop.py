@@ -35,7 +35,7 @@ import torch
 from ...io.recording import Recording
 from ...method.kinematics import KinematicModel
 from ...method.metrics import orientation_error
-from . import elimination, joints
+from . import elimination, jointfit, joints
 from .analysis import DEFAULT_GAIN, Analysis, NoiseFloor, joint_summary, link_summary, noise_floor
 from .calibration import FORMAT
 from .candidates import KINDS
@@ -127,6 +127,7 @@ class Diagnosis:
     complete: bool = True
     stop: str = ""  # why the loop stopped: a key of STOPS
     noise: NoiseFloor | None = None  # what a correct model would leave, estimated on the last analysis
+    joint: jointfit.Joint | None = None  # the kept measurement effects fitted jointly at the end (jointfit.py)
 
     @property
     def why_stopped(self) -> str:
@@ -148,7 +149,8 @@ class Diagnosis:
     def calibration(self) -> dict:
         """The measurement effects, as `apply_calibration` reads them (JSON-ready)."""
         return dict(format=FORMAT, links=list(self.links),
-                    effects=[e.to_json() for e in self.effects if not e.model_effect])
+                    effects=[e.to_json() for e in self.effects if not e.model_effect],
+                    fit=None if self.joint is None else self.joint.note)
 
 
 def _choose(s: Subject, kinds, threshold: float, first: bool) -> Effect | None:
@@ -190,11 +192,13 @@ def _choose(s: Subject, kinds, threshold: float, first: bool) -> Effect | None:
 def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], links, gain: float = DEFAULT_GAIN,
              max_effects: int = 6, threshold: float = SIGNIFICANT, refine: int = 2, kinds: Sequence[str] = KINDS,
              progress: bool = False, log: Callable[[str], None] | None = None,
-             max_samples: int = 300, eliminate: bool = True) -> list[Diagnosis]:
+             max_samples: int = 300, eliminate: bool = True, joint: bool = True) -> list[Diagnosis]:
     """Run the loop on B recordings (the same length, links the model's) with `model` built from
     `urdf`. Returns one Diagnosis per recording. kinds: the candidate effects considered;
     max_samples: the sample times at which effects are fitted against the task Jacobian; eliminate:
-    after each round, drop kept effects that no longer pay with the others in place (elimination.py).
+    after each round, drop kept effects that no longer pay with the others in place (elimination.py);
+    joint: at the end, fit the kept measurement effects jointly and give their standard errors from
+    the joint fit (jointfit.py).
 
     An effect added is kept only if, re-tracked, it does not raise the error it acts on (Effect.error:
     the orientations' MNTE, the angular-velocity RMSE or the base's velocity RMSE; by more than
@@ -245,11 +249,12 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
             say(f"round {round_ + 1}: {effect.kind} at {effect.target} reverted ({why})")
         kept = {id(s) for s, effect, *_ in added if s.steps and s.steps[-1].effect is effect}
         elimination.eliminate([v for v in found if id(v[0]) in kept], links, gain, threshold, progress, max_samples, say)
+    fits = jointfit.refit(subjects, links, gain, progress, max_samples) if joint else [None] * len(subjects)
     out = []
-    for s, original in zip(subjects, recordings):
+    for s, original, fit in zip(subjects, recordings, fits):
         analysis, b = s.current
         remaining = sorted((row for row in link_summary(analysis, b) if "rms_deg" in row), key=lambda r: -r["rms_deg"])
         out.append(Diagnosis(s.steps, s.recording, original, s.urdf, s.model, links, s.initial, s.current,
                              s.best_rejected, remaining, joint_summary(analysis, b), s.unobservable, s.rejected,
-                             s.done, s.stop, noise_floor(analysis, b)))
+                             s.done, s.stop, noise_floor(analysis, b), fit))
     return out

@@ -123,6 +123,11 @@ class Misalignment(Effect):
         R[:, i] = R[:, i] @ (C if sign > 0 else C.T)
         return replace(recording, orientation=R)
 
+    def directions(self, name):
+        if name != "rotation_vector" or "identified" not in self.params:
+            return super().directions(name)
+        return np.asarray(self.params["identified"], dtype=np.float64).reshape(-1, 3).T  # the joints follow the rest
+
     def rotation(self) -> np.ndarray:
         return so3.exp(torch.tensor(self.params["rotation_vector"], dtype=torch.float64)).numpy()
 

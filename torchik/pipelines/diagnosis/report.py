@@ -96,6 +96,7 @@ def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]
             lines.append(f"| {k} | {e.summary()} | {params} | {e.score:.0f} | {_fmt(step.before.overall['mnte'])} → "
                          f"{_fmt(step.after.overall['mnte'])} | {_fmt(step.before.overall['rmse'])} → "
                          f"{_fmt(step.after.overall['rmse'])} |")
+        lines += ["", f"Parameters and standard errors: {fit_source(d)}."]
         notes = [f"- {e.kind} at {e.target}: {e.notes}" for e in d.effects if e.notes]
         if notes:
             lines += ["", "Notes:", *notes]
@@ -158,6 +159,14 @@ def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]
     return "\n".join(lines)
 
 
+def fit_source(d: Diagnosis) -> str:
+    """Where the kept effects' values and standard errors come from: the joint fit at the end
+    (jointfit.py; and whether its step was taken), or each effect's own fit with the others in place."""
+    if d.joint is not None:
+        return d.joint.note
+    return "each effect's own fit with the others in place (no joint fit: no measurement effect was kept)"
+
+
 def answer(d: Diagnosis) -> list[str]:
     """The report's first lines: the effects kept, each with its evidence in one sentence; what was
     refused as implausible and the error it points to; why the loop stopped."""
@@ -168,6 +177,7 @@ def answer(d: Diagnosis) -> list[str]:
             share = "" if e.fit is None else f", explaining {100 * e.fit.explained:.0f} % of its channel's held-out residual"
             lines.append(f"- {e.summary()}: held-out score {e.score:.0f}{share}; MNTE "
                          f"{_fmt(step.before.overall['mnte'])} → {_fmt(step.after.overall['mnte'])}.")
+        lines += ["", f"Values and standard errors: {fit_source(d)}."]
     else:
         lines = ["**Found: nothing** the data tell from the noise."]
     refused = [e for e in d.rejected if "implausible:" in e.notes]
@@ -229,6 +239,7 @@ def write(d: Diagnosis, out: str | Path, source: str, model_name: str, rrd: bool
                    before=d.before.to_json(), after=d.after.to_json(),
                    best_rejected=None if d.best_rejected is None else d.best_rejected.to_json(),
                    rejected=[e.to_json() for e in d.rejected], unobservable=[e.to_json() for e in d.unobservable],
+                   joint_fit=None if d.joint is None else d.joint.to_json(), fit_source=fit_source(d),
                    remaining=d.remaining, limits=d.limits, complete=d.complete, stop=d.stop, why_stopped=d.why_stopped,
                    noise=None if d.noise is None else dict(axis_rms_rad=d.noise.axis_rms, power=d.noise.noise_power,
                                                            share=d.noise.share))
