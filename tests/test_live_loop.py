@@ -123,3 +123,17 @@ def test_frames_the_loop_steps_over_do_not_restart_a_character_from_the_zero_pos
     frames = torch.round(result.trajectories[0].time * 100.0)
     assert result.skipped[0] > 0 and float(frames.diff().max()) > 5  # steps over more than max_gap frames
     assert not result.trajectories[0].diagnostics["new_segment"].any()
+
+
+def test_what_the_set_up_made_is_out_of_the_garbage_collectors_reach_once_tracking(model):
+    """A full collection must not walk torch's modules and the model at every pass (150-180 ms a
+    collection with the compiled step): the live loop freezes them after its first steps."""
+    import gc
+
+    gc.unfreeze()
+    short = scenario("walking", model, TRACKED_LINKS["human66"], duration=0.3, rate=100.0)
+    try:
+        live_run(model, short)
+        assert gc.get_freeze_count() > 0
+    finally:
+        gc.unfreeze()
