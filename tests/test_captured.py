@@ -72,8 +72,8 @@ def test_other_steps_replayed_give_the_eager_states_too(uncompiled, case):
     sequence = targets_from_motion(model, motion, links, position_links)
     # iCub's walk passes near singular configurations, where H's conditioning turns the rounding of
     # sums taken in another order into differences of the velocity for a few steps (measured 1e-9 on
-    # one CPU, 1.07e-8 on an AVX-512 one, whose vector width changes the order): rounding that the
-    # conditioning amplifies, not another solution; the joints then differ by 6e-11.
+    # one machine, 1.07e-8 on another, an AVX-512 CPU): rounding that the conditioning amplifies,
+    # not another solution; the joints then differ by 6e-11.
     icub = case == "icub"
     eager_steps, _ = assert_same_run(model, sequence, links=links, position_links=position_links,
                                      scheme="paper" if case == "paper scheme" else "midpoint",
