@@ -30,7 +30,7 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import InputError
-from .sample import Sample, SourceStats, Url
+from .sample import Sample, SourceStats, Url, keep_newest
 
 PIPE_BYTES = 1 << 20  # a message of 64 characters' samples is some 150 kB: one fits without blocking
 STOP = "stop"
@@ -154,11 +154,8 @@ def _serve(url: Url, rate: float | None, position_scale: float, backlog: int, bo
             if source.socket.fileno() in ready:
                 start = time.process_time() if start is None else start
                 for sample in source.receive(0.0):
-                    queue = queues.setdefault(sample.character, deque())
-                    if len(queue) >= backlog:
-                        queue.popleft()
+                    if keep_newest(queues, sample, backlog):
                         skipped[sample.character] = skipped.get(sample.character, 0) + 1
-                    queue.append(sample)
             if credit and any(queues.values()):
                 given = [s for queue in queues.values() for s in queue]
                 messages.send(("samples", source.rate, dataclasses.astuple(source.stats), skipped, pack(given)))

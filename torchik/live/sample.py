@@ -9,6 +9,7 @@ every interface), `tcp://HOST:PORT`, `lsl://NAME` (a Lab Streaming Layer stream 
 from __future__ import annotations
 
 import dataclasses
+from collections import deque
 from dataclasses import dataclass
 from typing import Iterator, Protocol
 from urllib.parse import parse_qs, urlsplit
@@ -124,3 +125,14 @@ def snap_rate(estimate: float) -> float:
         if abs(estimate - rate) <= 0.03 * rate:
             return rate
     return estimate
+
+
+def keep_newest(queues: dict[int, deque], sample: Sample, backlog: int) -> bool:
+    """Queue `sample` in its character's deque of `queues`, which holds at most `backlog`: when full,
+    its oldest sample is stepped over. Returns whether one was (the caller counts it)."""
+    queue = queues.setdefault(sample.character, deque())
+    full = len(queue) >= backlog
+    if full:
+        queue.popleft()
+    queue.append(sample)
+    return full

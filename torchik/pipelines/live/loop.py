@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ...live.sample import Sample, Source
+from ...live.sample import Sample, Source, keep_newest
 from ...method.kinematics import KinematicModel
 from ...method.settings import TrackerSettings
 from ...method.tracker import DynamicalIK
@@ -50,11 +50,8 @@ class Mailbox:
 
     def put(self, sample: Sample) -> None:
         with self.condition:
-            queue = self.queues.setdefault(sample.character, deque())
-            if len(queue) >= self.backlog:
-                queue.popleft()
+            if keep_newest(self.queues, sample, self.backlog):
                 self.count_skipped(sample.character, 1)
-            queue.append(sample)
             self.last_put[sample.character] = time.perf_counter()
             self.condition.notify()
 
