@@ -111,7 +111,7 @@ def position_errors(model: KinematicModel, trajectory: Trajectory, sequence: Tar
 
 def after_transient(values: torch.Tensor, time: torch.Tensor, transient: float = 2.0) -> torch.Tensor:
     """values [T,...] at t >= time[0] + transient (all of them when the sequence is shorter)."""
-    keep = time >= time[0] + transient
+    keep = (time >= time[0] + transient).to(values.device)  # times stay on the CPU, values may not
     return values[keep] if bool(keep.any()) else values
 
 
@@ -188,9 +188,9 @@ class TrackingStatistics:
 
     def result(self) -> dict:
         """mnte, angular_velocity_rmse and (with ground truth) joint_error_rad, as `tracking_statistics`."""
-        time, known = self.time.values(), self.known.values()
+        time, known = self.time.values().cpu(), self.known.values().cpu()  # the run's device may be a GPU
         any_known = bool(known.any())
-        out: dict = {name: summary(series.values()[known], time[known], self.transient) if any_known else None
+        out: dict = {name: summary(series.values().cpu()[known], time[known], self.transient) if any_known else None
                      for name, series in zip(("mnte", "angular_velocity_rmse"), self.metrics.values())}
         if self.joints is not None:
             peak, squares, count = self.joints["after" if self.joints["after"][2] else "all"]

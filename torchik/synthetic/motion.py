@@ -54,14 +54,15 @@ def periodic_motion(model: KinematicModel, duration: float, rate: float, batch: 
     """A smooth, walking-like motion sampled at `rate` Hz: every joint oscillates about mid-range at
     `frequency` (and its second harmonic) with its own phase, the base moves forward at
     `forward_speed` m/s while swaying, bobbing, yawing, pitching and rolling. Velocities are exact.
-    Joints with finite limits stay inside them."""
+    Joints with finite limits stay inside them. The motion is drawn on the CPU, so a seed gives the
+    same motion on every device, and returned on the model's device."""
     g = torch.Generator().manual_seed(seed)
     kw: dict[str, Any] = dict(dtype=dtype)
     t = torch.arange(int(round(duration * rate)) + 1, **kw) / rate  # [T]
     n = model.n_dof
     w = 2 * math.pi * frequency
     phase = 2 * math.pi * torch.rand(batch, n, generator=g, **kw)
-    lower, upper = model.lower.to(**kw), model.upper.to(**kw)
+    lower, upper = model.lower.to(device="cpu", **kw), model.upper.to(device="cpu", **kw)
     finite = torch.isfinite(lower) & torch.isfinite(upper) & ((upper - lower) < 19.9)
     centre = torch.where(finite, (lower + upper) / 2, torch.zeros_like(lower))
     amplitude = torch.where(finite, torch.minimum(0.4 * (upper - lower), torch.full_like(lower, joint_amplitude)),
@@ -82,7 +83,7 @@ def periodic_motion(model: KinematicModel, duration: float, rate: float, batch: 
     ez = torch.tensor([0.0, 0.0, 1.0], **kw)
     omega = (d_yaw[..., None] * ez + d_pitch[..., None] * Rz[..., :, 1] + d_roll[..., None] * (Rz @ Ry)[..., :, 0])
     velocity = torch.cat((p_dot, omega, s_dot), dim=-1)
-    return Motion(t, p, R, s, velocity)
+    return Motion(*(x.to(model.device) for x in (t, p, R, s, velocity)))
 
 
 def targets_from_motion(model: KinematicModel, motion: Motion, orientation_links, position_links=None,

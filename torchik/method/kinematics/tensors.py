@@ -101,7 +101,7 @@ class TreeTensors:
 
 def tensors(tree: KinematicTree, geometry: Geometry, dtype, device) -> TreeTensors:
     """Derive the tensors of `tree` with dimensions `geometry`, in `dtype` on `device`."""
-    device = torch.device(device)
+    device = torch.empty(0, device=device).device  # 'cuda' made explicit ('cuda:0'), as inputs' devices are
     g = geometry.to(dtype=dtype, device=device)
     long: dict[str, Any] = dict(dtype=torch.long, device=device)
     template = torch.zeros(tree.n_frames + 1, 4, 4, dtype=dtype, device=device)
