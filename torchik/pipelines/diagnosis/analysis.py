@@ -112,6 +112,7 @@ class Analysis:
     rows: torch.Tensor
     joint_axes: torch.Tensor
     trajectory: Trajectory = field(repr=False)
+    poses: tuple[str | None, ...] = ()  # per subject: the reference pose a map calibrated it on (reference_pose)
     _projector: tuple | None = field(default=None, init=False, repr=False, compare=False)  # (b, M): projector(b)
 
     @property
@@ -190,6 +191,12 @@ def track(model: KinematicModel, recordings: Sequence[Recording], links, gain: f
     return tracker.run(sequence, initial=rest, progress=progress)
 
 
+def reference_pose(recording: Recording) -> str | None:
+    """The pose ('tpose', 'npose') a map calibrated the recording's offsets on; None if none did."""
+    calibration = (recording.meta.get("link_map") or {}).get("calibration") or {}
+    return calibration.get("reference_pose")
+
+
 def analyse(model: KinematicModel, recordings: Sequence[Recording], links, trajectory: Trajectory | None = None,
             gain: float = DEFAULT_GAIN, max_samples: int = 300, progress: bool = False) -> Analysis:
     """Track (unless `trajectory` is given) and compute the residuals of module docstring."""
@@ -237,7 +244,7 @@ def analyse(model: KinematicModel, recordings: Sequence[Recording], links, traje
     A = inverse_normal(J)
     return Analysis(model, links, time, R_m, w_m, p_m, v_m, R_hat, w_hat, p_hat, r, r_link, w_m - w_hat, e,
                     p_m - p_hat, torch.nan_to_num(e_p), valid, derived, velocity_derived, s, active, sample, J, A, rows,
-                    axes, trajectory)
+                    axes, trajectory, tuple(reference_pose(r) for r in recordings))
 
 
 def inverse_normal(J: torch.Tensor, damping: float = 1e-9) -> torch.Tensor:

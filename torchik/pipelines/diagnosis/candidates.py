@@ -7,12 +7,12 @@ from typing import Sequence
 
 import torch
 
-from . import gyro, joints, placement, position
+from . import gyro, joints, placement, position, posture
 from .analysis import Analysis
 from .effect import Effect
 
-KINDS = ("gyro_bias", "gyro_scale", "stream_delay", "misalignment", "sensor_delay", "heading_drift", "missing_dof",
-         "joint_limit", "position_offset")
+KINDS = ("gyro_bias", "gyro_scale", "stream_delay", "misalignment", "sensor_delay", "heading_drift", "static_pose",
+         "missing_dof", "joint_limit", "position_offset")
 
 
 def candidates(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, urdf: str,
@@ -27,6 +27,8 @@ def candidates(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tens
         out += gyro.fit(analysis, b, train, test, derived, target=target)
     if wanted & {"misalignment", "sensor_delay", "heading_drift"}:
         out += placement.fit(analysis, b, train, test, derived, target=target)
+    if "static_pose" in wanted:
+        out += posture.fit(analysis, b, train, test, urdf, target=target)
     if wanted & {"missing_dof", "joint_limit"}:
         out += joints.fit(analysis, b, train, test, urdf, target=target)
     if "position_offset" in wanted:

@@ -11,7 +11,8 @@ loop refines it. Once the new effect is kept, each effect's kind and target are 
 variant's train half and scored on its test half (`rescore`) with the test of the loop's choice
 (Effect.significant). Of those that fail, the weakest is dropped (`eliminate`): the subject is
 rebuilt and re-tracked without it, the effect is listed as rejected, as an echo of the effect added
-last, and the others are re-scored again.
+last, and the others are re-scored again; unless, re-tracked without it, the subject's error rose
+(the loop's test: an echo explains nothing the others do not), when it is put back and stays.
 """
 from __future__ import annotations
 
@@ -57,20 +58,25 @@ def reach(effect: Effect, model: KinematicModel, links: Sequence[str]) -> set[st
     return {name for name, moved in zip(links, below.tolist()) if moved}
 
 
-def related(a: Effect, b: Effect, model: KinematicModel, urdf: str, links: Sequence[str]) -> bool:
-    """Whether a and b can explain the same residual: they move a link in common, or links on either
-    side of one joint (the tracker shares a target's inconsistency between the links the joints
-    between them connect). Effects on links further apart are not each other's echoes, and their
-    variants need not be tracked."""
-    near = reach(b, model, links)
+def neighbourhood(effect: Effect, model: KinematicModel, urdf: str, links: Sequence[str]) -> set[str]:
+    """The links `effect` reaches (reach) and those one joint away from them: the tracker shares a
+    target's inconsistency between the links the joints between them connect."""
+    near = reach(effect, model, links)
     for group in joints.joint_groups(urdf, links):
         if group.child in near or group.parent in near:
             near |= {group.child, group.parent}
-    return bool(reach(a, model, links) & near)
+    return near
 
 
-def without(recording: Recording, urdf: str, kept: Sequence[Effect], drop: Effect) -> tuple[Recording, str]:
-    """The original recording and URDF with every kept effect but `drop` added again, in their order."""
+def related(a: Effect, b: Effect, model: KinematicModel, urdf: str, links: Sequence[str]) -> bool:
+    """Whether a and b can explain the same residual: they move a link in common, or links on either
+    side of one joint (neighbourhood). Effects on links further apart are not each other's echoes,
+    and their variants need not be tracked."""
+    return bool(reach(a, model, links) & neighbourhood(b, model, urdf, links))
+
+
+def without(recording: Recording, urdf: str, kept: Sequence[Effect], drop: Effect | None) -> tuple[Recording, str]:
+    """The original recording and URDF with every kept effect but `drop` (None: all) added again, in their order."""
     for effect in kept:
         if effect is drop:
             continue
@@ -128,13 +134,23 @@ def track(subjects: Sequence[Subject], found: Sequence[Variant], links, gain: fl
 
 
 def eliminate(found: list[Variant], links, gain: float, threshold: float, progress: bool, max_samples: int,
-              say: Callable[[str], None]) -> None:
+              say: Callable[[str], None], measure: Callable[[Subject, str], float] | None = None,
+              worse: float = 0.0) -> None:
     """Backward elimination on the variants `found` (tracked): for each subject, of the kept effects
     that no longer pay without it and with the others in place, the weakest is dropped; that subject is
-    rebuilt without it and tracked, and its kept effects re-scored again, until none is dropped."""
+    rebuilt without it and tracked, and its kept effects re-scored again, until none is dropped.
+
+    measure(s, key): subject s's current error `key` (Effect.error). When given, a drop that raises
+    the dropped effect's error by more than the share `worse` is undone: an echo explains nothing the
+    others do not, so taking it out cannot cost; one whose removal costs was re-scored low only
+    because its cause and an effect fitted to part of it share the residual. It stays, and is not
+    re-scored again."""
+    stays: set[int] = set()
     while found:
         failing: dict[int, list[tuple[float, Subject, Effect, str]]] = {}
         for s, effect, v in found:
+            if id(effect) in stays:
+                continue
             why, fit = rescore(*v.current, effect, v.urdf, s.derived, threshold)
             if why:
                 failing.setdefault(id(s), []).append((-math.inf if fit is None else fit.score, s, effect, why))
@@ -143,6 +159,8 @@ def eliminate(found: list[Variant], links, gain: float, threshold: float, progre
             _, s, effect, why = min(weakest, key=lambda x: x[0])
             assert s.source is not None, "set by the loop"
             echo_of = s.effects[-1]
+            before = None if measure is None else measure(s, effect.error)
+            saved = (s.recording, s.urdf, s.model, s.analysis, list(s.steps), effect.notes)
             original, urdf = s.source
             s.recording, s.urdf = without(original, urdf, s.effects, effect)
             if effect.model_effect:
@@ -152,6 +170,16 @@ def eliminate(found: list[Variant], links, gain: float, threshold: float, progre
                                                                  f"{echo_of.target}: {why}"]))
             s.rejected.append(effect)
             say(f"{effect.kind} at {effect.target} dropped as an echo of {echo_of.kind} at {echo_of.target} ({why})")
-            dropped.append(s)
-        found = [v for s in dropped for v in variants(s, s.effects)]
-        track(dropped, found, links, gain, progress, max_samples)
+            dropped.append((s, effect, before, saved))
+        found = [v for s, *_ in dropped for v in variants(s, s.effects)]
+        track([s for s, *_ in dropped], found, links, gain, progress, max_samples)
+        for s, effect, before, saved in dropped:
+            after = None if measure is None else measure(s, effect.error)
+            if before is None or after is None or after <= before * (1 + worse):
+                continue
+            s.recording, s.urdf, s.model, s.analysis, s.steps, effect.notes = saved
+            s.rejected = [e for e in s.rejected if e is not effect]
+            stays.add(id(effect))
+            found = [v for v in found if v[0] is not s]  # built without it
+            say(f"{effect.kind} at {effect.target} kept: without it the {effect.error} went from {before:.4g} to "
+                f"{after:.4g}")

@@ -31,7 +31,8 @@ from .analysis import Analysis, inverse_normal
 from .effect import Effect, score
 
 REGULARISE = 0.05
-MAX_WIDENING = math.pi / 2  # rad: a limit this far from the motion is no limit too narrow but another error
+MAX_WIDENING = math.radians(30.0)  # rad: people's ranges differ by 10-20 deg; a limit further off is another error
+MAX_OFFSET = math.radians(30.0)  # rad: an added axis never this close to its zero, the reference pose's, sits off it
 MAX_RANGE = math.pi  # rad: no joint of a body moves over more than this about one axis
 LEVERAGE = 1e-3  # a subtree the joints follow to within this share about every axis has no axis missing
 
@@ -150,9 +151,14 @@ class MissingDof(Effect):
 
     def implausible(self):
         lo, hi = self.params["angle_range"]
-        return (f"an axis moving over {math.degrees(hi - lo):.0f} deg, beyond the {math.degrees(MAX_RANGE):.0f} deg of "
-                f"any joint of a body: a sign of a segment frame flipped or swapped, or of a mislabelled marker"
-                if hi - lo > MAX_RANGE else "")
+        if hi - lo > MAX_RANGE:
+            return (f"an axis moving over {math.degrees(hi - lo):.0f} deg, beyond the {math.degrees(MAX_RANGE):.0f} deg "
+                    f"of any joint of a body: a sign of a segment frame flipped or swapped, or of a mislabelled marker")
+        if min(abs(lo), abs(hi)) > MAX_OFFSET and lo * hi > 0:  # the calibration's static pose puts it at zero
+            return (f"an axis held between {math.degrees(lo):.0f} and {math.degrees(hi):.0f} deg, never within "
+                    f"{math.degrees(MAX_OFFSET):.0f} deg of the zero the static pose gives it: a sign of a static pose "
+                    f"that is not the assumed one (the segment's posture in it), or of a mislabelled marker")
+        return ""
 
     def summary(self):
         a = np.asarray(self.params["axis"])

@@ -1,4 +1,5 @@
-"""The loop: track, analyse, fit every candidate effect, add the best if it is significant, repeat.
+"""The loop: track, analyse, fit every candidate effect, add the significant ones that explain disjoint
+residuals, repeat.
 
     for each round:
         analyse the residuals of the current recording and model
@@ -6,11 +7,14 @@
         the best significant one (Effect.significant: its held-out score above SIGNIFICANT, also once
         calibrated on how its gains scatter across stretches of the test time (Score.calibrated), or
         for an angle fitted sample by sample, a size above the noise that analysis.noise_floor
-        estimates) whose values are plausible (Effect.implausible): refit it on all the data,
-        add it (correct the recording, or augment the URDF), re-track, and
-        refine its parameters `refine` times (the fits are linearised and the tracker absorbs
+        estimates) whose values are plausible (Effect.implausible), and with it every other such
+        candidate whose links are not related to those of one chosen before it (not the same links
+        nor one joint away: disjoint residuals, none the echo of another): refit each on all the
+        data, add them (correct the recording, or augment the URDF), re-track, and
+        refine their parameters `refine` times (the fits are linearised and the tracker absorbs
         part of an effect: Gauss-Newton steps)
-        keep it if the error it acts on did not rise and it is still plausible; else take it back;
+        keep each if the error it acts on (over the links the others do not move) did not rise and
+        it is still plausible; else take it back;
         then re-score every effect kept before it with the others in place and drop those that no
         longer pay for their parameters, as echoes of it (elimination.py)
     until no candidate is significant, or `max_effects` rounds are done; Diagnosis.stop says which
@@ -35,7 +39,7 @@ import torch
 from ...io.recording import Recording
 from ...method.kinematics import KinematicModel
 from ...method.metrics import orientation_error
-from . import elimination, jointfit, joints
+from . import elimination, jointfit, joints, posture
 from .analysis import DEFAULT_GAIN, Analysis, NoiseFloor, joint_summary, link_summary, noise_floor
 from .calibration import FORMAT
 from .candidates import KINDS
@@ -153,8 +157,24 @@ class Diagnosis:
                     fit=None if self.joint is None else self.joint.note)
 
 
-def _choose(s: Subject, kinds, threshold: float, first: bool) -> Effect | None:
-    """The best significant candidate of subject s, refitted on all the data (None when none is)."""
+def _area(s: Subject, effect: Effect) -> tuple[set[str], set[str]]:
+    """The tracked links a candidate of subject s moves and its neighbourhood (elimination.reach and
+    neighbourhood), a missing axis's in the model that has it."""
+    links, urdf, model = s.current[0].links, s.urdf, s.model
+    if isinstance(effect, joints.MissingDof):
+        urdf = effect.augment(urdf)
+        model = KinematicModel.from_urdf(urdf, name=model.name, dtype=model.dtype)
+    return elimination.reach(effect, model, links), elimination.neighbourhood(effect, model, urdf, links)
+
+
+def _choose(s: Subject, kinds, threshold: float, first: bool) -> list[Effect]:
+    """The significant candidates of subject s that explain disjoint residuals, refitted on all the
+    data, best first (empty when none is): the best plausible one, then, in the order of their
+    scores, each plausible one whose links are not related (elimination.neighbourhood: not the same
+    links nor one joint away) to those of a candidate chosen before it. Candidates that far apart
+    are not each other's echoes (elimination.related), so each was scored as it would be once the
+    others are in; those related to a chosen one wait for the next round, fitted with it in place.
+    A deferred candidate (taken back from a round with others) comes alone, when it is the best."""
     taken = s.rejected + [st.effect for st in s.steps]
     found = [c for c in s.candidates(kinds) if not any(c.overlaps(e) for e in taken)]
     if first:
@@ -168,25 +188,104 @@ def _choose(s: Subject, kinds, threshold: float, first: bool) -> Effect | None:
             passing.append(c)
         elif c.score > threshold:
             c.notes = "; ".join(filter(None, [c.notes, f"not significant: {why}"]))
-    while passing:
-        best = passing.pop(0)
-        final = s.refit(best) or best
-        final.fit = best.fit  # the score is the held-out one
-        why = final.implausible()
-        if not why:
+    chosen: list[tuple[Effect, Effect]] = []  # (the candidate, its refit)
+    areas: list[tuple[set[str], set[str]]] = []
+    for c in passing:
+        alone = (c.kind, c.target) in s.deferred
+        if alone and chosen:
+            continue
+        area = _area(s, c)
+        if any(area[0] & near or reach & area[1] for reach, near in areas):
+            continue
+        final = s.refit(c) or c
+        final.fit = c.fit  # the score is the held-out one
+        why = final.implausible() or posture.held_by_reference(final, s.model, s.current[0].poses[s.current[1]])
+        if why:
+            final.notes = "; ".join(filter(None, [final.notes, f"implausible: {why}"]))
+            s.rejected.append(final)
+            continue
+        chosen.append((c, final))
+        areas.append(area)
+        if alone:
             break
-        final.notes = "; ".join(filter(None, [final.notes, f"implausible: {why}"]))
-        s.rejected.append(final)
-    else:
+    if not chosen:
         s.done, s.best_rejected = True, found[0] if found else None
         s.stop = "unidentifiable" if not found else "noise" if noise.share >= NOISE_SHARE else "unexplained"
-        return None
-    rivals = [c for c in passing if c.score >= TIE * best.score and c.kind == best.kind]
+        return []
+    best, final = chosen[0]
+    rivals = [c for c in passing[passing.index(best) + 1:] if c.score >= TIE * best.score and c.kind == best.kind]
     if rivals:
         final.notes = "; ".join(filter(None, [final.notes, "explained nearly as well by " + ", ".join(
             f"{c.kind} at {c.target} (score {c.score:.0f} against {best.score:.0f})" for c in rivals)
             + ": the data hardly tell them apart"]))
-    return final
+    return [f for _, f in chosen]
+
+
+def _error_apart(errors_: Errors, key: str, others: set[str]) -> float:
+    """Errors.overall[key] over the links but `others` (those the round's other effects move):
+    what an effect added with others is judged on. The base's velocity is one figure for all."""
+    if key == "base_velocity_rmse":
+        return errors_.base_velocity
+    values = getattr(errors_, key)
+    keep = np.array([name not in others for name in errors_.links])
+    return float(np.nanmean(values[keep])) if keep.any() else errors_.overall[key]
+
+
+Added = tuple[Subject, list[Effect], Errors, tuple]  # a subject, the effects of the round, its errors and state before
+
+
+def _variants(s: Subject, chosen: list[Effect]) -> list[elimination.Variant]:
+    """The variants of subject s for backward elimination after a round that added `chosen`: s without
+    each effect related to one of them, with all the others in place (each kept effect once)."""
+    out: dict[int, elimination.Variant] = {}
+    for effect in chosen:
+        others = [e for e in chosen if e is not effect]
+        for v in elimination.variants(s, s.effects + others + [effect]):
+            out.setdefault(id(v[1]), v)
+    return list(out.values())
+
+
+def _check(added: list[Added], links, gain: float, progress: bool, max_samples: int, round_: int,
+           say: Callable[[str], None]) -> set[int]:
+    """Keep each effect of the round whose error (Effect.error, over the links the round's other
+    effects do not move: all of them when it came alone) did not rise by more than WORSE once
+    re-tracked and refined, and that is still plausible; take back the others (the subject rebuilt
+    from its source without them and tracked again). One taken back from a round with others is
+    tried again in a round of its own (Subject.deferred: what rose may be the others' doing), then
+    rejected if it fails again. Returns the ids of the subjects that kept all
+    of theirs (their elimination variants hold what they have)."""
+    complete, rebuilt = set(), []
+    for s, chosen, before, saved in added:
+        after = errors(*s.current)
+        areas = [elimination.neighbourhood(e, s.model, s.urdf, links) for e in chosen]
+        kept = []
+        for n, effect in enumerate(chosen):
+            others = set().union(*(area for m, area in enumerate(areas) if m != n))
+            old, new = (_error_apart(e, effect.error, others) for e in (before, after))
+            why = (f"re-tracked with it, the {effect.error} went from {old:.4g} to {new:.4g}" if new > old * (1 + WORSE)
+                   else effect.implausible())  # refined, it may have gone where it cannot be
+            if not why:
+                kept.append(effect)
+                s.steps.append(Step(effect, before, after))
+                continue
+            if len(chosen) > 1 and (effect.kind, effect.target) not in s.deferred:
+                s.deferred.add((effect.kind, effect.target))  # the others' effect on the error may be what rose
+                say(f"round {round_ + 1}: {effect.kind} at {effect.target} taken back, to be tried alone ({why})")
+                continue
+            effect.notes = "; ".join(filter(None, [effect.notes, f"reverted: {why}"]))
+            s.rejected.append(effect)
+            say(f"round {round_ + 1}: {effect.kind} at {effect.target} reverted ({why})")
+        if len(kept) == len(chosen):
+            complete.add(id(s))
+        elif not kept:
+            s.recording, s.urdf, s.model, s.analysis = saved
+        else:
+            assert s.source is not None, "set by the loop"
+            s.recording, s.urdf = elimination.without(*s.source, s.effects, None)
+            s.model = KinematicModel.from_urdf(s.urdf, name=s.model.name, dtype=s.model.dtype)
+            rebuilt.append(s)
+    analyse_subjects(rebuilt, links, gain, progress, max_samples)
+    return complete
 
 
 def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], links, gain: float = DEFAULT_GAIN,
@@ -213,42 +312,34 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
         s.derived = s.current[0].derived[s.current[1]]
     say = log or (lambda _: None)
     for round_ in range(max_effects):
-        added = []
+        added: list[Added] = []
         for s in (s for s in subjects if not s.done):
-            effect = _choose(s, kinds, threshold, round_ == 0)
-            if effect is None:
+            chosen = _choose(s, kinds, threshold, round_ == 0)
+            if not chosen:
                 continue
-            say(f"round {round_ + 1}: {effect.summary()} (score {effect.score:.0f})")
-            added.append((s, effect, errors(*s.current), s.saved()))
-            s.add(effect)
+            for effect in chosen:
+                say(f"round {round_ + 1}: {effect.summary()} (score {effect.score:.0f})")
+            added.append((s, chosen, errors(*s.current), s.saved()))
+            for effect in chosen:
+                s.add(effect)
         if not added:
             break
         # the variants for backward elimination track in the batch of their subject
-        found = [v for s, effect, *_ in added for v in elimination.variants(s, s.effects + [effect])] if eliminate else []
+        found = [v for s, chosen, *_ in added for v in _variants(s, chosen)] if eliminate else []
         elimination.track([s for s, *_ in added], found, links, gain, progress, max_samples)
         for _ in range(refine):
-            moved = []  # those left as they were keep their analysis: re-tracking would give it again
-            for s, effect, *_ in added:
-                update = None if isinstance(effect, joints.MissingDof) else s.refit(effect)
-                if update is not None and not update.negligible():
-                    s.add(update)
-                    effect.refine(update)
-                    moved.append(s)
-            analyse_subjects(moved, links, gain, progress, max_samples)
-        for s, effect, before, saved in added:
-            after = errors(*s.current)
-            old, new = before.overall[effect.error], after.overall[effect.error]
-            why = (f"re-tracked with it, the {effect.error} went from {old:.4g} to {new:.4g}" if new > old * (1 + WORSE)
-                   else effect.implausible())  # refined, it may have gone where it cannot be
-            if not why:
-                s.steps.append(Step(effect, before, after))
-                continue
-            s.recording, s.urdf, s.model, s.analysis = saved
-            effect.notes = "; ".join(filter(None, [effect.notes, f"reverted: {why}"]))
-            s.rejected.append(effect)
-            say(f"round {round_ + 1}: {effect.kind} at {effect.target} reverted ({why})")
-        kept = {id(s) for s, effect, *_ in added if s.steps and s.steps[-1].effect is effect}
-        elimination.eliminate([v for v in found if id(v[0]) in kept], links, gain, threshold, progress, max_samples, say)
+            moved = {}  # those left as they were keep their analysis: re-tracking would give it again
+            for s, chosen, *_ in added:
+                for effect in chosen:
+                    update = None if isinstance(effect, joints.MissingDof) else s.refit(effect)
+                    if update is not None and not update.negligible():
+                        s.add(update)
+                        effect.refine(update)
+                        moved[id(s)] = s
+            analyse_subjects(list(moved.values()), links, gain, progress, max_samples)
+        complete = _check(added, links, gain, progress, max_samples, round_, say)
+        elimination.eliminate([v for v in found if id(v[0]) in complete], links, gain, threshold, progress,
+                              max_samples, say, lambda s, key: errors(*s.current).overall[key], WORSE)
     fits = jointfit.refit(subjects, links, gain, progress, max_samples) if joint else [None] * len(subjects)
     out = []
     for s, original, fit in zip(subjects, recordings, fits):

@@ -61,12 +61,19 @@ def fit_linear(analysis: Analysis, b: int, links: list[int], blocks: torch.Tenso
     per candidate a second channel (N_e [k,k], g_e [k], sigma2_e, y_test [n,d], predict(theta) ->
     [n,d]) fitted jointly. A direction is identified when it leaves at least LEVERAGE of itself in
     the residual (the joints do not follow it) and carries IDENTIFIABLE of the largest eigenvalue."""
-    MG = project_blocks(analysis, b, links, blocks)  # [N,S,R,k]
+    return fit_projected(analysis, b, project_blocks(analysis, b, links, blocks),
+                         blocks.transpose(-1, -2) @ blocks, train, test, extra)
+
+
+def fit_projected(analysis: Analysis, b: int, MG: torch.Tensor, GG: torch.Tensor, train: torch.Tensor,
+                  test: torch.Tensor, extra: list | None = None) -> list[LinearFit]:
+    """fit_linear with M G [N,S,R,k] given, and G^T G [N,S,k,k] (before the joints absorb their part):
+    for candidates whose G spans the rows of several links (posture.py)."""
     tr, te = train[:, analysis.sample], test[:, analysis.sample]  # [N,S]
     r = analysis.stacked_residual(b)  # [S,R]
     w = tr.to(MG.dtype)[..., None, None]
     N = (w * (MG.transpose(-1, -2) @ MG)).sum(1)  # [N,k,k]
-    N0 = (w * (blocks.transpose(-1, -2) @ blocks)).sum(1)  # the same before the joints absorb their part
+    N0 = (w * GG).sum(1)  # the same before the joints absorb their part
     g = (w[..., 0] * (MG.transpose(-1, -2) @ r[..., None])[..., 0]).sum(1)  # [N,k]
     sigma2_o = max(float(torch.diff(r[:, 3:], dim=0).square().mean()) / 2.0, 1e-12)  # white noise: var(dr) = 2 sigma^2
     if extra is not None:
