@@ -94,6 +94,7 @@ def run(source: Source, model_name: str, max_effects: int, reports: Path | None)
         write(d, reports / f"{source.name}_{model_name}", source.file, model.name)
     result = dict(recording=source.name, file=source.file, what=source.what, model=model.name, links=len(links),
                   frames=len(recording.time), rate_hz=recording.frame_rate, seconds=seconds, complete=d.complete,
+                  rounds=d.rounds, stop=d.stop, why_stopped=d.why_stopped,
                   before=d.before.overall, after=d.after.overall, log=lines,
                   steps=[dict(effect=s.effect.to_json(), summary=s.effect.summary(), before=s.before.overall,
                               after=s.after.overall) for s in d.steps],
@@ -114,13 +115,14 @@ def _g(x: float) -> str:
 def markdown(results: list[dict]) -> str:
     lines = ["# Diagnosis of the measured recordings: results", "",
              "Written by `python experiments/diagnose_measured.py`; read README.md for what they mean.", "",
-             "| recording | model | frames | effects kept | MNTE before → after | ratio "
+             "| recording | model | frames | rounds | stopped | effects kept | MNTE before → after | ratio "
              "| RMSE (rad/s) before → after | time (s) |",
-             "|---|---|---:|---:|---|---:|---|---:|"]
+             "|---|---|---:|---:|---|---:|---|---:|---|---:|"]
     limit = results[0]["max_effects"] if results else 0
     for r in results:
         b, a = r["before"]["mnte"], r["after"]["mnte"]
-        lines.append(f"| {r['recording']} | {r['model']} | {r['frames']} | {len(r['steps'])} | {_g(b)} → {_g(a)} | "
+        lines.append(f"| {r['recording']} | {r['model']} | {r['frames']} | {r['rounds']} | {r['stop']} | "
+                     f"{len(r['steps'])} | {_g(b)} → {_g(a)} | "
                      f"{_g(b / a) if a > 0 else '-'} | {_g(r['before']['rmse'])} → {_g(r['after']['rmse'])} | "
                      f"{r['seconds']:.0f} |")
     for r in results:
@@ -134,9 +136,9 @@ def markdown(results: list[dict]) -> str:
             lines.append("Nothing added.")
         for e in r["rejected"]:
             lines.append(f"- not kept: {e['kind']} at {e['target']} (score {e['score']:.0f}): {e['notes']}")
-        if not r["complete"]:
-            lines.append(f"- stopped at the limit of {limit} rounds with candidates still significant")
-        elif r["best_left"]:
+        lines.append(f"- why the loop stopped (after {r['rounds']} rounds that added effects, at most {limit}): "
+                     f"{r['why_stopped']}")
+        if r["complete"] and r["best_left"]:
             lines.append(f"- best candidate left: {r['best_left']['summary']} (score {r['best_left']['score']:.1f})")
         for kind, count in r["unobservable_count"].items():
             lines.append(f"- not identifiable: {kind} at {count} links")

@@ -319,3 +319,16 @@ def test_a_refine_step_within_its_standard_errors_is_negligible():
     assert within.negligible() and not beyond.negligible()
     limit = JointLimit("joint_limit", "jLeftKnee_roty", dict(side="lower", limit=0.0, needed=0.0), dict(needed=1.0))
     assert not limit.negligible()
+
+
+def test_joint_effects_beyond_a_body_are_implausible():
+    """A limit moved by more than MAX_WIDENING, and an added axis that never comes within MAX_OFFSET
+    of the zero the static pose gives it, are refused; within them they are not."""
+    from torchik.pipelines.diagnosis.joints import MAX_OFFSET, MAX_WIDENING
+
+    limit = lambda beyond: JointLimit("joint_limit", "jLeftKnee_roty", dict(side="lower", limit=0.0,  # noqa: E731
+                                                                            needed=-beyond))
+    assert limit(0.9 * MAX_WIDENING).implausible() == "" and limit(1.1 * MAX_WIDENING).implausible()
+    axis = lambda lo, hi: MissingDof("missing_dof", "jLeftWrist", dict(angle_range=[lo, hi]))  # noqa: E731
+    assert axis(-0.1, 1.5 * MAX_OFFSET).implausible() == "" and axis(0.9 * MAX_OFFSET, 3 * MAX_OFFSET).implausible() == ""
+    assert axis(1.1 * MAX_OFFSET, 2 * MAX_OFFSET).implausible() and axis(-2 * MAX_OFFSET, -1.1 * MAX_OFFSET).implausible()

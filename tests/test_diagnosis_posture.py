@@ -11,7 +11,9 @@ Properties:
 - on that recording the first effect the loop adds is the static pose below the right upper arm,
   plausible, and no misalignment of a single arm link is kept; afterwards the arm's MNTE against
   the recording calibrated in the true posture is within 2x the clean recording's (its noise);
-- a recording that no map calibrated has no static-pose candidate.
+- a recording that no map calibrated has no static-pose candidate;
+- a joint limit that the reference pose holds a joint at (an N-pose's shoulders) moved is refused
+  as the sign of a static pose, not taken as a limit.
 """
 
 from __future__ import annotations
@@ -26,8 +28,9 @@ from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.diagnosis.analysis import analyse
 from torchik.pipelines.diagnosis.candidates import candidates
 from torchik.pipelines.diagnosis.effect import halves, replace
+from torchik.pipelines.diagnosis.joints import JointLimit
 from torchik.pipelines.diagnosis.loop import diagnose, errors
-from torchik.pipelines.diagnosis.posture import StaticPose, reference_rotations
+from torchik.pipelines.diagnosis.posture import StaticPose, held_by_reference, reference_rotations
 from torchik.synthetic.scenarios import scenario
 
 LINKS = TRACKED_LINKS["human48"]
@@ -87,3 +90,14 @@ def test_no_candidate_without_a_calibrated_pose(walks):
     train, test = halves(analysis.time)
     assert analysis.poses == (None,)
     assert not candidates(analysis, 0, train, test, urdf, ("static_pose",))
+
+
+def test_a_limit_the_reference_pose_holds_is_no_finding(walks):
+    """A shoulder beyond the limit an N-pose holds it at says the static pose; a limit the pose does
+    not hold (the hip's extension), or the same limit under a T-pose, may be a finding."""
+    model = walks[0]
+    shoulder = JointLimit("joint_limit", "jRightShoulder_rotx", dict(side="upper", limit=math.pi / 2, needed=2.0))
+    hip = JointLimit("joint_limit", "jRightHip_roty", dict(side="upper", limit=math.radians(15.0), needed=0.4))
+    assert "static pose" in held_by_reference(shoulder, model, "npose")
+    assert held_by_reference(shoulder, model, "tpose") == "" and held_by_reference(hip, model, "npose") == ""
+    assert held_by_reference(shoulder, model, None) == ""

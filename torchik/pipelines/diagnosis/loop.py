@@ -132,6 +132,7 @@ class Diagnosis:
     stop: str = ""  # why the loop stopped: a key of STOPS
     noise: NoiseFloor | None = None  # what a correct model would leave, estimated on the last analysis
     joint: jointfit.Joint | None = None  # the kept measurement effects fitted jointly at the end (jointfit.py)
+    rounds: int = 0  # the rounds that added effects
 
     @property
     def why_stopped(self) -> str:
@@ -268,7 +269,8 @@ def _check(added: list[Added], links, gain: float, progress: bool, max_samples: 
                 kept.append(effect)
                 s.steps.append(Step(effect, before, after))
                 continue
-            if len(chosen) > 1 and (effect.kind, effect.target) not in s.deferred:
+            rose = new > old * (1 + WORSE)
+            if rose and len(chosen) > 1 and (effect.kind, effect.target) not in s.deferred:
                 s.deferred.add((effect.kind, effect.target))  # the others' effect on the error may be what rose
                 say(f"round {round_ + 1}: {effect.kind} at {effect.target} taken back, to be tried alone ({why})")
                 continue
@@ -317,6 +319,7 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
             chosen = _choose(s, kinds, threshold, round_ == 0)
             if not chosen:
                 continue
+            s.rounds += 1
             for effect in chosen:
                 say(f"round {round_ + 1}: {effect.summary()} (score {effect.score:.0f})")
             added.append((s, chosen, errors(*s.current), s.saved()))
@@ -347,5 +350,5 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
         remaining = sorted((row for row in link_summary(analysis, b) if "rms_deg" in row), key=lambda r: -r["rms_deg"])
         out.append(Diagnosis(s.steps, s.recording, original, s.urdf, s.model, links, s.initial, s.current,
                              s.best_rejected, remaining, joint_summary(analysis, b), s.unobservable, s.rejected,
-                             s.done, s.stop, noise_floor(analysis, b), fit))
+                             s.done, s.stop, noise_floor(analysis, b), fit, s.rounds))
     return out

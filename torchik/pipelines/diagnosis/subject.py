@@ -33,6 +33,7 @@ class Subject:
     rejected: list = field(default_factory=list)
     stop: str = "cap"
     source: tuple[Recording, str] | None = None  # the recording and URDF the loop started from
+    rounds: int = 0  # the loop's rounds that added effects to it
     deferred: set = field(default_factory=set)  # (kind, target) taken back from a round with others: tried alone
 
     @property
