@@ -100,7 +100,8 @@ def run(source: Source, model_name: str, max_effects: int, reports: Path | None)
                               after=s.after.overall) for s in d.steps],
                   rejected=[dict(kind=e.kind, target=e.target, score=e.score, notes=e.notes) for e in d.rejected],
                   best_left=None if d.best_rejected is None else dict(summary=d.best_rejected.summary(),
-                                                                       score=d.best_rejected.score),
+                                                                       score=d.best_rejected.score,
+                                                                       notes=d.best_rejected.notes),
                   unobservable=sorted({f"{e.kind}: {e.notes}" for e in d.unobservable}),
                   unobservable_count={k: sum(e.kind == k for e in d.unobservable)
                                       for k in sorted({e.kind for e in d.unobservable})},
@@ -139,7 +140,9 @@ def markdown(results: list[dict]) -> str:
         lines.append(f"- why the loop stopped (after {r['rounds']} rounds that added effects, at most {limit}): "
                      f"{r['why_stopped']}")
         if r["complete"] and r["best_left"]:
-            lines.append(f"- best candidate left: {r['best_left']['summary']} (score {r['best_left']['score']:.1f})")
+            left = r["best_left"]
+            why = f": {left['notes']}" if left.get("notes") else ""
+            lines.append(f"- best candidate left: {left['summary']} (score {left['score']:.1f}){why}")
         for kind, count in r["unobservable_count"].items():
             lines.append(f"- not identifiable: {kind} at {count} links")
         where = ", ".join(f"{row['link']} {row['rms_deg']:.1f} deg" for row in r["remaining"])

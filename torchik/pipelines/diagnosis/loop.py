@@ -51,8 +51,8 @@ TIE = 0.9  # a second candidate scoring this share of the best explains the data
 WORSE = 1e-3  # an effect that raises its error by more than this share once re-tracked is taken back
 NOISE_SHARE = 0.8  # the noise accounts for this share of what remains: the residual is consistent with it
 STOPS = {"noise": "consistent with noise: no candidate is significant, and the noise accounts for what remains",
-         "unexplained": "no candidate is significant, but more remains than the noise accounts for: a cause none "
-                        "of the candidates describes",
+         "unexplained": "no candidate is both significant and plausible, but more remains than the noise accounts "
+                        "for: a cause none of the candidates describes",
          "unidentifiable": "nothing identifiable: no candidate can be fitted on these data",
          "cap": "cap reached: candidates were still significant after the last round allowed (--max-effects)"}
 
