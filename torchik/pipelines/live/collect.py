@@ -1,0 +1,44 @@
+"""Python's cyclic garbage collector run by the live loop between samples (`IdleCollector`).
+
+Left to itself the collector runs whenever allocations cross its thresholds: in the middle of a
+step, the targets' assembly or an LSL push, and that sample's latency takes the pause (a gen-1
+collection some 1 ms, a full one more). The live loop turns automatic collection off and runs the
+collections that have come due itself, after a step has been published, when the next sample is
+the furthest off. The thresholds stay the collector's own: only the moment changes."""
+
+from __future__ import annotations
+
+import gc
+import time
+
+
+class IdleCollector:
+    """Between `start()` and `stop()` automatic collection is off (then as it was); `collect()`
+    runs the oldest generation the collector would have collected by now, if any. `pauses` holds
+    each collection's generation and duration (s)."""
+
+    def __init__(self) -> None:
+        self.pauses: list[tuple[int, float]] = []
+        self._was_enabled = False
+
+    def start(self) -> "IdleCollector":
+        self._was_enabled = gc.isenabled()
+        gc.disable()
+        return self
+
+    def stop(self) -> None:
+        if self._was_enabled:
+            gc.enable()
+
+    def collect(self) -> int | None:
+        """Collect the oldest generation whose count exceeds its threshold (as CPython's own trigger
+        does: allocations for generation 0, collections of the younger one for the others); the
+        generation collected, or None when none was due."""
+        count, threshold = gc.get_count(), gc.get_threshold()
+        due = [generation for generation in range(3) if threshold[generation] and count[generation] > threshold[generation]]
+        if not due or count[0] <= threshold[0]:  # an older generation is collected only at a young one's turn
+            return None
+        start = time.perf_counter()
+        gc.collect(due[-1])
+        self.pauses.append((due[-1], time.perf_counter() - start))
+        return due[-1]
