@@ -9,16 +9,13 @@ the furthest off. The thresholds stay the collector's own: only the moment chang
 from __future__ import annotations
 
 import gc
-import time
 
 
 class IdleCollector:
     """Between `start()` and `stop()` automatic collection is off (then as it was); `collect()`
-    runs the oldest generation the collector would have collected by now, if any. `pauses` holds
-    each collection's generation and duration (s)."""
+    runs the oldest generation the collector would have collected by now, if any."""
 
     def __init__(self) -> None:
-        self.pauses: list[tuple[int, float]] = []
         self._was_enabled = False
 
     def start(self) -> "IdleCollector":
@@ -35,10 +32,8 @@ class IdleCollector:
         does: allocations for generation 0, collections of the younger one for the others); the
         generation collected, or None when none was due."""
         count, threshold = gc.get_count(), gc.get_threshold()
-        due = [generation for generation in range(3) if threshold[generation] and count[generation] > threshold[generation]]
-        if not due or count[0] <= threshold[0]:  # an older generation is collected only at a young one's turn
+        if not threshold[0] or count[0] <= threshold[0]:  # a threshold of 0 turns collection off
             return None
-        start = time.perf_counter()
-        gc.collect(due[-1])
-        self.pauses.append((due[-1], time.perf_counter() - start))
-        return due[-1]
+        generation = max(g for g in range(3) if count[g] > threshold[g])
+        gc.collect(generation)
+        return generation
