@@ -137,3 +137,37 @@ def test_what_the_set_up_made_is_out_of_the_garbage_collectors_reach_once_tracki
         assert gc.get_freeze_count() > 0
     finally:
         gc.unfreeze()
+
+
+def test_garbage_is_collected_between_samples_never_during_a_step(model, monkeypatch):
+    """A collection in a step delays that sample's estimate by its pause (a gen-1 collection some
+    1 ms at 240 Hz): the loop runs the collections that come due after a step, not in one."""
+    import gc
+
+    import torchik.pipelines.live.loop as live_loop
+
+    stepping, starts = [False], []
+    step = live_loop._Loop.step
+
+    def timed_step(self, *args, **kwargs):
+        stepping[0] = True
+        try:
+            step(self, *args, **kwargs)
+        finally:
+            stepping[0] = False
+
+    def seen(phase, info):
+        if phase == "start":
+            starts.append(stepping[0])
+
+    monkeypatch.setattr(live_loop._Loop, "step", timed_step)
+    short = scenario("walking", model, TRACKED_LINKS["human66"], duration=0.3, rate=100.0)
+    saved = gc.get_threshold()
+    gc.set_threshold(100, 2, 2)  # collections due within every step, each generation's among them
+    gc.callbacks.append(seen)
+    try:
+        live_run(model, short)
+    finally:
+        gc.callbacks.remove(seen)
+        gc.set_threshold(*saved)
+    assert starts and not any(starts)

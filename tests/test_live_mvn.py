@@ -138,3 +138,17 @@ def test_positions_streamed_in_cm_are_read_as_metres_when_told():
     np.testing.assert_allclose(centimetres[0].position[0], 0.01 * metres[0].position[0])
     np.testing.assert_allclose(centimetres[0].velocity[0], 0.01 * metres[0].velocity[0])
     np.testing.assert_array_equal(centimetres[0].quaternion, metres[0].quaternion)
+
+
+def test_a_streamed_quaternion_gives_so3s_rotation_of_it_normalised_and_nan_where_it_is():
+    import torch
+
+    from torchik.live.mvn import rotations
+    from torchik.method import so3
+
+    q = np.random.default_rng(0).normal(size=(3, 5, 4)) * 0.7  # off unit length, as float32 streams leave them
+    q[1, 2] = np.nan
+    unit = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    expected = so3.quaternion_to_matrix(torch.from_numpy(unit)).numpy()
+    np.testing.assert_allclose(rotations(q), expected, rtol=0, atol=1e-14)
+    assert np.isnan(rotations(q)[1, 2]).all() and not np.isnan(rotations(q)[0]).any()

@@ -5,6 +5,7 @@ and when the live loop is interrupted (no orphan); samples cross the pipe unchan
 
 from __future__ import annotations
 
+import pickle
 import socket
 import threading
 import time
@@ -125,7 +126,8 @@ def test_ctrl_c_in_the_live_loop_ends_the_session_and_its_receiver():
     assert not source.process.is_alive() and source.process.exitcode == 0
 
 
-def test_samples_cross_the_pipe_unchanged_whatever_fields_they_carry():
+@pytest.mark.parametrize("count", [1, 4], ids=["as samples", "as arrays"])
+def test_samples_cross_the_pipe_unchanged_whatever_fields_they_carry(count):
     rng = np.random.default_rng(0)
     links = ("a", "b")
 
@@ -134,8 +136,8 @@ def test_samples_cross_the_pipe_unchanged_whatever_fields_they_carry():
         return Sample(character, frame, frame / 100, rng.uniform(), links if full else MVN_SEGMENTS[:2],
                       rng.normal(size=(2, 4)), extra(), extra(), extra())
 
-    samples = [sample(0, 1, True), sample(1, 1, False), sample(2, 1, True), sample(1, 2, False)]
-    back = sorted(unpack(pack(samples)), key=lambda s: (s.character, s.frame))
+    samples = [sample(0, 1, True), sample(1, 1, False), sample(2, 1, True), sample(1, 2, False)][:count]
+    back = sorted(unpack(pickle.loads(pickle.dumps(pack(samples)))), key=lambda s: (s.character, s.frame))
     for a, b in zip(sorted(samples, key=lambda s: (s.character, s.frame)), back, strict=True):
         assert (a.character, a.frame, a.time, a.arrival, a.links) == (b.character, b.frame, b.time, b.arrival, b.links)
         for name in ("quaternion", "angular_velocity", "position", "velocity"):

@@ -9,7 +9,8 @@ step, as they would offline. A character without a sample in a step has its targ
 (it stands still); one silent for `stall_s` leaves the batch, is reported, and joins again, from
 the pose of its new targets, when it comes back. The per-step work is batched: targets, dt, the
 published values and the history are array operations over the characters; only the LSL push is
-one call per character (one outlet each)."""
+one call per character (one outlet each). Python's garbage collector runs between samples, after a
+step is published (`IdleCollector`), not inside a step."""
 
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ from ...method.kinematics import KinematicModel
 from ...method.settings import TrackerSettings
 from ...method.tracker import DynamicalIK
 from .batch import BatchTracker, LiveRetarget, rows_from
+from .collect import IdleCollector
 from .history import History, LiveResult, milliseconds
 from .publish import Publisher
 from .targets import Selection, sample_targets
@@ -129,6 +131,7 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
                  options.keep_states, getattr(source, "lsl_clock", False))
     start = last_progress = last_check = time.perf_counter()
     interrupted = False
+    collector = IdleCollector().start()  # garbage collected between samples, not in a step
     try:
         while True:
             # a source knows its rate before it yields its first sample (MVN estimates it from the
@@ -144,6 +147,7 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
                 loop.step(got, source.rate, lambda: _counters(source, mailbox, loop), mailbox.last_skips)
             elif mailbox.finished:
                 break
+            collector.collect()  # after the step's push: the next sample is the furthest off
             if now - last_check >= min(0.05, options.stall_s / 4):  # not every step: a look at every character
                 last_check = now
                 loop.check_stalls(now, options.stall_s, mailbox)
@@ -158,6 +162,7 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
     except KeyboardInterrupt:
         interrupted = True
     finally:
+        collector.stop()
         source.close()
         if receiver is not None:
             receiver.join(timeout=2.0)
