@@ -18,7 +18,7 @@ from pathlib import Path
 from ...errors import InputError
 from ...io.recording import Recording
 from ...method.kinematics import KinematicModel
-from . import gyro, joints, placement, position, posture
+from . import frames, gyro, joints, placement, position, posture
 
 FORMAT = "torchik-calibration/1"
 
@@ -26,7 +26,7 @@ EFFECT_TYPES = {"gyro_bias": gyro.GyroBias, "gyro_scale": gyro.GyroScale, "strea
                 "misalignment": placement.Misalignment, "sensor_delay": placement.SensorDelay,
                 "heading_drift": placement.HeadingDrift, "missing_dof": joints.MissingDof,
                 "joint_limit": joints.JointLimit, "position_offset": position.PositionOffset,
-                "static_pose": posture.StaticPose}
+                "static_pose": posture.StaticPose, "flipped_frame": frames.FlippedFrame}
 
 
 def apply_calibration(recording: Recording, calibration: dict) -> Recording:

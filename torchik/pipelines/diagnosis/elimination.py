@@ -23,7 +23,7 @@ import torch
 
 from ...io.recording import Recording
 from ...method.kinematics import KinematicModel
-from . import joints
+from . import frames, joints
 from .analysis import Analysis, analyse, noise_floor
 from .candidates import candidates
 from .effect import Effect, halves
@@ -44,8 +44,10 @@ def depends(later: Effect, earlier: Effect) -> bool:
 
 def removable(kept: Sequence[Effect]) -> list[Effect]:
     """The kept effects (in the order added) that can be taken out alone: all but the last added (it
-    was just chosen with the others in place) and those a later model effect depends on."""
-    return [e for k, e in enumerate(kept[:-1]) if not any(depends(later, e) for later in kept[k + 1:])]
+    was just chosen with the others in place), those a later model effect depends on, and flipped
+    frames (frames.py: scored by re-tracking, with no fit for `rescore`)."""
+    return [e for k, e in enumerate(kept[:-1]) if e.kind != frames.KIND
+            and not any(depends(later, e) for later in kept[k + 1:])]
 
 
 def reach(effect: Effect, model: KinematicModel, links: Sequence[str]) -> set[str]:

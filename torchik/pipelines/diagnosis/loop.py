@@ -39,7 +39,7 @@ import torch
 from ...io.recording import Recording
 from ...method.kinematics import KinematicModel
 from ...method.metrics import orientation_error
-from . import elimination, jointfit, joints, posture
+from . import elimination, frames, jointfit, joints, posture
 from .analysis import DEFAULT_GAIN, Analysis, NoiseFloor, joint_summary, link_summary, noise_floor
 from .calibration import FORMAT
 from .candidates import KINDS
@@ -168,7 +168,7 @@ def _area(s: Subject, effect: Effect) -> tuple[set[str], set[str]]:
     return elimination.reach(effect, model, links), elimination.neighbourhood(effect, model, urdf, links)
 
 
-def _choose(s: Subject, kinds, threshold: float, first: bool) -> list[Effect]:
+def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> list[Effect]:
     """The significant candidates of subject s that explain disjoint residuals, refitted on all the
     data, best first (empty when none is): the best plausible one, then, in the order of their
     scores, each plausible one whose links are not related (elimination.neighbourhood: not the same
@@ -178,6 +178,7 @@ def _choose(s: Subject, kinds, threshold: float, first: bool) -> list[Effect]:
     A deferred candidate (taken back from a round with others) comes alone, when it is the best."""
     taken = s.rejected + [st.effect for st in s.steps]
     found = [c for c in s.candidates(kinds) if not any(c.overlaps(e) for e in taken)]
+    found = sorted(found + frames.candidates(s, kinds, taken, gain), key=lambda c: -c.score)
     if first:
         s.unobservable = [c for c in found if c.fit is None]
     found = [c for c in found if c.fit is not None]
@@ -316,7 +317,7 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
     for round_ in range(max_effects):
         added: list[Added] = []
         for s in (s for s in subjects if not s.done):
-            chosen = _choose(s, kinds, threshold, round_ == 0)
+            chosen = _choose(s, kinds, threshold, round_ == 0, gain)
             if not chosen:
                 continue
             s.rounds += 1

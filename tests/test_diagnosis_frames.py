@@ -1,0 +1,87 @@
+"""The flipped-frame family (torchik/pipelines/diagnosis/frames.py).
+
+Recordings: a Human48 walk (5 s at 50 Hz, the scenarios' sensor noise), clean, and the same with one
+sensor's frame turned by 180 deg about one of its axes: its orientation stream multiplied by
+diag(+-1) here, independently of the family's own `apply`.
+
+Properties:
+- a flip's correction undoes its injection, moves only its link, and a calibration file carries it;
+- on each flipped recording the loop adds that flip, on that link and axis, and the MNTE after is
+  within 2x the clean recording's; the clean recording gets no flip and has no link with a residual
+  large enough to propose one (no re-tracking spent on it).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
+from torchik.pipelines.diagnosis.calibration import apply_calibration
+from torchik.pipelines.diagnosis.effect import replace
+from torchik.pipelines.diagnosis.frames import KIND, FlippedFrame, large_residual
+from torchik.pipelines.diagnosis.loop import diagnose
+from torchik.synthetic.scenarios import scenario
+
+LINKS = TRACKED_LINKS["human48"]
+FLIPS = (("LeftHand", "x", (1.0, -1.0, -1.0)), ("RightLowerLeg", "z", (-1.0, -1.0, 1.0)))  # link, axis, diag(F)
+
+
+def _flipped(walk, link: str, diagonal) -> object:
+    R = walk.orientation.copy()
+    R[:, LINKS.index(link)] = R[:, LINKS.index(link)] @ np.diag(diagonal)
+    return replace(walk, orientation=R)
+
+
+@pytest.fixture(scope="module")
+def walk(one_thread):
+    model = load_model("human48")
+    return model, human_urdf(48), scenario("walking", model, LINKS, 5.0, 50.0, seed=5, orientation_noise=0.005,
+                                           gyro_noise=0.02)
+
+
+@pytest.fixture(scope="module")
+def runs(walk):
+    """The diagnoses of the flipped walks (FLIPS' order), then of the clean one, tracked as one batch."""
+    model, urdf, clean = walk
+    recordings = [_flipped(clean, link, diagonal) for link, _, diagonal in FLIPS] + [clean]
+    return diagnose(model, urdf, recordings, LINKS, max_effects=3), recordings
+
+
+def test_a_correction_undoes_the_injection(walk):
+    clean = walk[2]
+    effect = FlippedFrame(KIND, "LeftForeArm", dict(axis="y"))
+    moved = effect.inject(clean)
+    i = LINKS.index("LeftForeArm")
+    others = [n for n in range(len(LINKS)) if n != i]
+    assert not np.allclose(moved.orientation[:, i], clean.orientation[:, i])
+    np.testing.assert_array_equal(moved.orientation[:, others], clean.orientation[:, others])
+    np.testing.assert_allclose(effect.correct(moved).orientation, clean.orientation, atol=1e-15)
+    np.testing.assert_array_equal(moved.angular_velocity, clean.angular_velocity)  # world frame: a constant F leaves it
+
+
+@pytest.mark.parametrize("case", range(len(FLIPS)))
+def test_the_loop_finds_the_flip_and_the_error_returns_to_the_clean_level(runs, case):
+    diagnoses, _ = runs
+    d, clean = diagnoses[case], diagnoses[-1]
+    link, axis, _ = FLIPS[case]
+    flips = [(e.target, e.params["axis"]) for e in d.effects if e.kind == KIND]
+    assert flips == [(link, axis)]
+    assert d.after.overall["mnte"] <= 2.0 * clean.after.overall["mnte"]
+
+
+def test_the_calibration_file_undoes_the_flip(runs, walk):
+    diagnoses, recordings = runs
+    calibration = json.loads(json.dumps(diagnoses[0].calibration()))
+    link = FLIPS[0][0]
+    i = LINKS.index(link)
+    corrected = apply_calibration(recordings[0], calibration)
+    np.testing.assert_allclose(corrected.orientation[:, i], walk[2].orientation[:, i], atol=1e-12)
+
+
+def test_a_clean_recording_gets_no_flip_and_proposes_none(runs):
+    clean = runs[0][-1]
+    assert not [e for e in clean.effects + clean.rejected if e.kind == KIND]
+    assert not large_residual(*clean.first)
