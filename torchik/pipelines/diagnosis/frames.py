@@ -24,6 +24,7 @@ import torch
 
 from .analysis import Analysis
 from .effect import Effect, halves, replace, score
+from .joints import joint_groups
 from .subject import Subject, analyse_subjects
 
 KIND = "flipped_frame"
@@ -39,17 +40,26 @@ def flip(axis: str) -> np.ndarray:
 
 @dataclass
 class FlippedFrame(Effect):
-    """The `target` sensor's frame turned by 180 deg about its own axis params['axis'] ('x', 'y' or 'z'):
-    R_m = R F (flip). A choice of one of three, with no continuous parameter to refine."""
+    """The frames of the sensors params['links'] (`target` and, for a whole limb, the tracked links
+    below it) turned by 180 deg about their own axis params['axis'] ('x', 'y' or 'z'): R_m = R F
+    (flip). A choice among a few, with no continuous parameter to refine."""
 
     def apply(self, recording, sign):
-        i = recording.links.index(self.target)
         R = recording.orientation.copy()
-        R[:, i] = R[:, i] @ flip(self.params["axis"])  # F^-1 = F: adding and removing it are the same
+        F = flip(self.params["axis"])
+        for name in self.params["links"]:
+            i = recording.links.index(name)
+            R[:, i] = R[:, i] @ F  # F^-1 = F: adding and removing it are the same
         return replace(recording, orientation=R)
 
+    def overlaps(self, other):
+        return other.kind == self.kind and list(other.params.get("links", [])) == list(self.params["links"])
+
     def summary(self):
-        return f"the {self.target} sensor frame flipped 180 deg about its {self.params['axis']} axis"
+        links = self.params["links"]
+        if len(links) == 1:
+            return f"the {self.target} sensor frame flipped 180 deg about its {self.params['axis']} axis"
+        return f"the {', '.join(links)} sensor frames flipped 180 deg about their {self.params['axis']} axes"
 
 
 def chordal_residual(analysis: Analysis, b: int) -> torch.Tensor:
@@ -71,21 +81,37 @@ def large_residual(analysis: Analysis, b: int, transient: float = 1.0) -> list[s
             if n >= 8 and value > math.radians(LARGE)]
 
 
+def flip_sets(s: Subject) -> list[list[str]]:
+    """The sets of links whose frames subject s's candidates flip: each link with a large residual
+    (large_residual) and each tracked link one joint from it (the tracker shares a flip's residual
+    with the links the joints between them connect, and may leave most of it on a neighbour), alone
+    and with the tracked links below it (a whole limb's frames built the wrong way round, which a
+    static pose would need half a turn to explain); but those scored since the last flip was kept
+    (s.tried)."""
+    analysis, b = s.current
+    groups = joint_groups(s.urdf, analysis.links)
+    large = set(large_residual(analysis, b))
+    near = large | {g.parent for g in groups if g.child in large} | {g.child for g in groups if g.parent in large}
+    below = {g.child: tuple(n for n in analysis.links if n in g.subtree) for g in groups}
+    flips = sum(e.kind == KIND for e in s.effects)
+    sets = {(name,) for name in near} | {below[name] for name in near if len(below.get(name, ())) > 1}
+    return [list(links) for links in sorted(sets) if (links, flips) not in s.tried]
+
+
 def candidates(s: Subject, kinds, taken: list[Effect], gain: float) -> list[Effect]:
     """FlippedFrame candidates of subject s, scored by re-tracking, best first: three (one per axis)
-    on every link with a large residual (large_residual) that has no flip taken (kept or rejected)
-    and whose flips were not scored since the last flip was kept (s.tried); none when KIND is not
-    among `kinds`. The recordings with each flip undone track as one batch."""
+    on each of flip_sets(s) that has no flip taken (kept or rejected); none when KIND is not among
+    `kinds`. The recordings with each flip undone track as one batch."""
     if KIND not in kinds:
         return []
     analysis, b = s.current
     flips = sum(e.kind == KIND for e in s.effects)
-    links = [name for name in large_residual(analysis, b) if (name, flips) not in s.tried
-             and not any(e.kind == KIND and e.target == name for e in taken)]
-    if not links:
+    found = [FlippedFrame(KIND, links[0], dict(axis=axis, links=links), n_params=1) for links in flip_sets(s)
+             for axis in AXES]
+    found = [c for c in found if not any(c.overlaps(e) for e in taken)]
+    if not found:
         return []
-    s.tried |= {(name, flips) for name in links}
-    found = [FlippedFrame(KIND, name, dict(axis=axis), n_params=1) for name in links for axis in AXES]
+    s.tried |= {(tuple(c.params["links"]), flips) for c in found}
     variants = [Subject(c.correct(s.recording), s.urdf, s.model) for c in found]
     analyse_subjects(variants, analysis.links, gain, False, VARIANT_SAMPLES)
     test = halves(analysis.time)[1]
