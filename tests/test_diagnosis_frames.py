@@ -1,14 +1,20 @@
 """The flipped-frame family (torchik/pipelines/diagnosis/frames.py).
 
-Recordings: a Human48 walk (5 s at 50 Hz, the scenarios' sensor noise), clean, and the same with one
-sensor's frame turned by 180 deg about one of its axes: its orientation stream multiplied by
-diag(+-1) here, independently of the family's own `apply`.
+Recordings: a Human48 walk (5 s at 50 Hz, the scenarios' sensor noise), clean; the same with one
+sensor's frame turned by 180 deg about one of its axes (its orientation stream multiplied by
+diag(+-1)), and with the forearms' streams exchanged, both made here, independently of the
+families' own `apply`.
 
 Properties:
-- a flip's correction undoes its injection, moves only its link, and a calibration file carries it;
+- a flip's and a swap's corrections undo their injections, move only their links, and a calibration
+  file carries a flip;
 - on each flipped recording (one link's frame; a forearm's and hand's together) the loop adds that
   flip, on those links and that axis, and the MNTE after is within 2x the clean recording's;
-- the clean recording gets no flip and has no link with a residual large enough to propose one (no
+- on the recording with the forearms' streams exchanged the loop adds that swap, and the MNTE after
+  is within 2x the clean recording's;
+- a kept flip removes most of the residual on its links and those one joint away; one that removes
+  less than MIN_REMOVED is refused (Retracked.implausible: it brought a cause of another size closer);
+- the clean recording gets no flip nor swap and has no link with a residual large enough to propose one (no
   re-tracking spent on it).
 """
 
@@ -22,13 +28,14 @@ import pytest
 from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.diagnosis.calibration import apply_calibration
 from torchik.pipelines.diagnosis.effect import replace
-from torchik.pipelines.diagnosis.frames import KIND, FlippedFrame, large_residual
+from torchik.pipelines.diagnosis.frames import KIND, KINDS, MIN_REMOVED, SWAP, FlippedFrame, SwappedSegments, large_residual
 from torchik.pipelines.diagnosis.loop import diagnose
 from torchik.synthetic.scenarios import scenario
 
 LINKS = TRACKED_LINKS["human48"]
 FLIPS = ((("LeftHand",), "x", (1.0, -1.0, -1.0)), (("RightLowerLeg",), "z", (-1.0, -1.0, 1.0)),
          (("RightForeArm", "RightHand"), "y", (-1.0, 1.0, -1.0)))  # links, axis, diag(F)
+SWAPPED = ("LeftForeArm", "RightForeArm")
 
 
 def _flipped(walk, links, diagonal) -> object:
@@ -36,6 +43,13 @@ def _flipped(walk, links, diagonal) -> object:
     for link in links:
         R[:, LINKS.index(link)] = R[:, LINKS.index(link)] @ np.diag(diagonal)
     return replace(walk, orientation=R)
+
+
+def _swapped(walk, pair) -> object:
+    i, j = (LINKS.index(n) for n in pair)
+    R, w = walk.orientation.copy(), walk.angular_velocity.copy()
+    R[:, [i, j]], w[:, [i, j]] = R[:, [j, i]], w[:, [j, i]]
+    return replace(walk, orientation=R, angular_velocity=w)
 
 
 @pytest.fixture(scope="module")
@@ -47,9 +61,9 @@ def walk(one_thread):
 
 @pytest.fixture(scope="module")
 def runs(walk):
-    """The diagnoses of the flipped walks (FLIPS' order), then of the clean one, tracked as one batch."""
+    """The diagnoses of the flipped walks (FLIPS' order), the swapped, then the clean one, tracked as one batch."""
     model, urdf, clean = walk
-    recordings = [_flipped(clean, links, diagonal) for links, _, diagonal in FLIPS] + [clean]
+    recordings = [_flipped(clean, links, diagonal) for links, _, diagonal in FLIPS] + [_swapped(clean, SWAPPED), clean]
     return diagnose(model, urdf, recordings, LINKS, max_effects=3), recordings
 
 
@@ -63,6 +77,19 @@ def test_a_correction_undoes_the_injection(walk):
     np.testing.assert_array_equal(moved.orientation[:, others], clean.orientation[:, others])
     np.testing.assert_allclose(effect.correct(moved).orientation, clean.orientation, atol=1e-15)
     np.testing.assert_array_equal(moved.angular_velocity, clean.angular_velocity)  # world frame: a constant F leaves it
+    swap = SwappedSegments(SWAP, SWAPPED[0], dict(links=list(SWAPPED)))
+    moved = swap.inject(clean)
+    np.testing.assert_array_equal(moved.orientation, _swapped(clean, SWAPPED).orientation)
+    np.testing.assert_array_equal(swap.correct(moved).angular_velocity, clean.angular_velocity)
+    np.testing.assert_array_equal(swap.correct(moved).orientation, clean.orientation)
+
+
+def test_the_loop_finds_the_swap(runs):
+    diagnoses, _ = runs
+    d, clean = diagnoses[-2], diagnoses[-1]
+    assert [e.params["links"] for e in d.effects if e.kind in KINDS] == [list(SWAPPED)]
+    assert [e.kind for e in d.effects if e.kind in KINDS] == [SWAP]
+    assert d.after.overall["mnte"] <= 2.0 * clean.after.overall["mnte"]
 
 
 @pytest.mark.parametrize("case", range(len(FLIPS)))
@@ -85,5 +112,14 @@ def test_the_calibration_file_undoes_the_flip(runs, walk):
 
 def test_a_clean_recording_gets_no_flip_and_proposes_none(runs):
     clean = runs[0][-1]
-    assert not [e for e in clean.effects + clean.rejected if e.kind == KIND]
+    assert not [e for e in clean.effects + clean.rejected if e.kind in KINDS]
     assert not large_residual(*clean.first)
+
+
+def test_a_flip_that_removes_little_of_its_links_residual_is_refused(runs):
+    """A half turn has no size to fit: undone where it is the cause, it takes most of its links' residual
+    with it (the kept flips), and one that removes less brought a cause of another size closer."""
+    kept = [e for d in runs[0][:len(FLIPS)] for e in d.effects if e.kind == KIND]
+    assert kept and all(e.params["removed"] >= MIN_REMOVED and not e.implausible() for e in kept)
+    partial = FlippedFrame(KIND, "LeftHand", dict(axis="x", links=["LeftHand"], removed=MIN_REMOVED / 2))
+    assert f"{100 * MIN_REMOVED / 2:.0f} %" in partial.implausible()

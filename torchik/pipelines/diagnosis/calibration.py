@@ -26,7 +26,8 @@ EFFECT_TYPES = {"gyro_bias": gyro.GyroBias, "gyro_scale": gyro.GyroScale, "strea
                 "misalignment": placement.Misalignment, "sensor_delay": placement.SensorDelay,
                 "heading_drift": placement.HeadingDrift, "missing_dof": joints.MissingDof,
                 "joint_limit": joints.JointLimit, "position_offset": position.PositionOffset,
-                "static_pose": posture.StaticPose, "flipped_frame": frames.FlippedFrame}
+                "static_pose": posture.StaticPose, "flipped_frame": frames.FlippedFrame,
+                "swapped_segments": frames.SwappedSegments}
 
 
 def apply_calibration(recording: Recording, calibration: dict) -> Recording:

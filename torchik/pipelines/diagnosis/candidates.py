@@ -12,7 +12,8 @@ from .analysis import Analysis
 from .effect import Effect
 
 KINDS = ("gyro_bias", "gyro_scale", "stream_delay", "misalignment", "sensor_delay", "heading_drift", "static_pose",
-         "missing_dof", "joint_limit", "position_offset", "flipped_frame")  # flipped_frame: scored in the loop (frames.py)
+         "missing_dof", "joint_limit", "position_offset", "flipped_frame",
+         "swapped_segments")  # the last two: scored by re-tracking in the loop (frames.py)
 
 
 def candidates(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, urdf: str,

@@ -45,8 +45,8 @@ def depends(later: Effect, earlier: Effect) -> bool:
 def removable(kept: Sequence[Effect]) -> list[Effect]:
     """The kept effects (in the order added) that can be taken out alone: all but the last added (it
     was just chosen with the others in place), those a later model effect depends on, and flipped
-    frames (frames.py: scored by re-tracking, with no fit for `rescore`)."""
-    return [e for k, e in enumerate(kept[:-1]) if e.kind != frames.KIND
+    frames and swapped segments (frames.py: scored by re-tracking, with no fit for `rescore`)."""
+    return [e for k, e in enumerate(kept[:-1]) if e.kind not in frames.KINDS
             and not any(depends(later, e) for later in kept[k + 1:])]
 
 
