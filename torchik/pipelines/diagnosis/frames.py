@@ -13,6 +13,9 @@ residual is large (rms angle above LARGE), the recording with the flip about eac
 of them tracked in one batch, and what the tracker leaves on the test half of the time compared with
 what it leaves now (effect.score, one parameter). The residual compared is the chordal one,
 R_m - R_hat of every link, whose square is 4 (1 - cos) of the angle: the MNTE the loop judges.
+A half turn has no size to fit: where it is the cause, undoing it leaves only noise on its links, so
+one that removes less than MIN_REMOVED of the residual there (and one joint away) is refused as
+implausible: it brought a cause of another size closer (a static pose of 110 deg, which a half turn leaves at 70).
 
 Markers of the two sides mislabelled give a link the streams of its counterpart (the left forearm's
 on the right one); scored the same way, by re-tracking with the streams exchanged back.

@@ -178,7 +178,7 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
     A deferred candidate (taken back from a round with others) comes alone, when it is the best."""
     taken = s.rejected + [st.effect for st in s.steps]
     found = [c for c in s.candidates(kinds) if not any(c.overlaps(e) for e in taken)]
-    found = sorted(found + frames.candidates(s, kinds, taken, gain), key=lambda c: -c.score)
+    found = sorted(found + frames.candidates(s, kinds, taken, gain), key=lambda c: -c.score)  # half turns, swaps
     if first:
         s.unobservable = [c for c in found if c.fit is None]
     found = [c for c in found if c.fit is not None]

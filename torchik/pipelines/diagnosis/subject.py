@@ -35,7 +35,7 @@ class Subject:
     source: tuple[Recording, str] | None = None  # the recording and URDF the loop started from
     rounds: int = 0  # the loop's rounds that added effects to it
     deferred: set = field(default_factory=set)  # (kind, target) taken back from a round with others: tried alone
-    tried: set = field(default_factory=set)  # (link, flips kept then) whose frame flips were scored (frames.py)
+    tried: set = field(default_factory=set)  # (kind, candidate, flips and swaps kept then) re-tracked (frames.py)
 
     @property
     def effects(self) -> list[Effect]:
