@@ -6,9 +6,11 @@ streams. Their signature is e = S(w_m) - w_fd(R_m) (analysis.py), which needs no
 - gyro late by d (w_m(t) = w(t - d)):            S(w_m)(t + d) = w_fd(t)
 
 All in the world frame, as recordings store angular velocity. Orientation noise, differentiated,
-makes e noisy at high frequencies, where these effects have little power: both sides of each fit are
-low-passed at `cutoff` (linear, so the parameters are unchanged). Fits are closed form: a
-regression, and a lag search refined by a parabola.
+makes e noisy at high frequencies, where these effects have little power: both sides of the scale
+and delay fits are low-passed at `cutoff` (linear, so the parameters are unchanged). A bias is
+fitted on e's integral instead (_bias): the differentiated noise telescopes there, and a bias of a
+degree per second, far below e's noise sample by sample, shows as the orientations' change over
+seconds. Fits are closed form: a regression, and a lag search refined by a parabola.
 """
 
 from __future__ import annotations
@@ -118,11 +120,9 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
     derived = analysis.derived[b] if derived is None else derived
     dt = float(torch.diff(time).median())
     cutoff = min(cutoff, 0.25 / dt)
-    eye = torch.eye(3, dtype=time.dtype)
     ok = analysis.valid[:, b]  # [T,L]
     low = lambda x: lowpass_blocks(x, time, cutoff, train, test)  # noqa: E731  (all links at once)
     e_low = low(analysis.e[:, b])
-    R_low = low(torch.where(ok[..., None, None], analysis.R_m[:, b], eye))
     w_lows = low(simpson(torch.where(ok[..., None], analysis.w_m[:, b], 0.0)))
     for i, name in enumerate(analysis.links):
         if target not in (None, "all", name):
@@ -134,14 +134,8 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
         tr, te = ok[:, i] & train, ok[:, i] & test
         if int(tr.sum()) < 8 or int(te.sum()) < 8:
             continue
-        e, R, w_low = e_low[:, i], R_low[:, i], w_lows[:, i]
-        # bias: e = R_m b, sensor frame
-        N = (R[tr].transpose(-1, -2) @ R[tr]).sum(0)
-        bias = torch.linalg.solve(N, (R[tr].transpose(-1, -2) @ e[tr, :, None]).sum(0)).squeeze(-1)
-        fit_b = score(e[te], e[te] - R[te] @ bias, 3)
-        cov = fit_b.sigma2 * fit_b.tau * torch.linalg.inv(N)
-        out.append(GyroBias("gyro_bias", name, dict(bias=bias.tolist()),
-                            dict(bias=cov.diagonal().sqrt().tolist()), 3, fit_b))
+        e, w_low = e_low[:, i], w_lows[:, i]
+        out += [fitted for fitted in [_bias(name, analysis.e[:, b, i], analysis.R_m[:, b, i], ok[:, i], time)] if fitted]
         # scale: e = gamma S(w_m), gamma = kappa / (1 + kappa)
         power = float(w_low[tr].square().sum().clamp(min=1e-12))
         gamma = float((e[tr] * w_low[tr]).sum()) / power
@@ -159,6 +153,83 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
         common.params["links"] = list(names)
         out.append(common)
     return out
+
+
+SPACING = 0.5  # s: the integrals' samples the bias is fitted on, apart by more than the orientations' noise is correlated
+
+
+def _bias(name: str, e: torch.Tensor, R: torch.Tensor, ok: torch.Tensor, time: torch.Tensor) -> GyroBias | None:
+    """The GyroBias of one gyro from its disagreement e [T,3] with its orientations R [T,3,3] (valid
+    where ok [T]), fitted in integral form: C(t) = int e dt = G(t) b + noise, G(t) = int R dt, on the
+    first half of the time and scored on the second, each integrated from its own start (halves of
+    its own, not fit's alternating blocks: a second's span shows a bias no better than e does); its
+    value then from the whole time. None where either half has under 8 valid samples.
+
+    The orientations' noise n enters e differentiated, a blue noise whose integral is n(t) - n(t0):
+    told from a bias only over long spans, not sample by sample. But the integral also holds a random
+    walk (the gyro's own noise, and n x w where a world-frame gyro and the noisy orientations
+    disagree on the frame): C's noise is modelled as A (I + 1 1^T) + q min(t_i, t_j) at samples
+    SPACING apart, A and q from how the train half's increments grow with their lag (once what the fit
+    leaves), and both sides of the test half whitened by it before the score (which then sees
+    independent samples)."""
+    dt = float(torch.diff(time).median())
+    stride = max(1, int(round(SPACING / dt)))
+    first = torch.arange(len(time)) < len(time) // 2
+
+    def integral(span: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        keep = ok & span
+        C = torch.cumsum(torch.where(keep[:, None], e, 0.0), 0)[keep] * dt
+        G = torch.cumsum(torch.where(keep[:, None, None], R, 0.0), 0)[keep] * dt
+        # from the span's first sample, which then holds nothing (its noise is the others' constant)
+        return C - C[0], G - G[0], time[keep] - time[keep][0]
+
+    C_tr, G_tr, t_tr = integral(first)
+    C_te, G_te, t_te = integral(~first)
+    if min(len(C_tr), len(C_te)) < 8:  # as every fit here: too short a recording to fit on
+        return None
+    stride = min(stride, min(len(C_tr), len(C_te)) // 4)  # at least four samples a half
+    bias, _, noise = _integral_fit(C_tr, G_tr, t_tr, stride)
+    W = _whitener(noise, t_te[stride::stride])  # the train half's noise model: nothing of the test half chooses it
+    fit = score(W @ C_te[stride::stride], W @ (C_te - G_te @ bias)[stride::stride], 3)
+    # the value itself from the whole time, once the score has shown it holds on time it was not fitted on
+    bias, cov, _ = _integral_fit(*integral(torch.ones_like(first)), stride)
+    return GyroBias("gyro_bias", name, dict(bias=bias.tolist()), dict(bias=cov.diagonal().sqrt().tolist()), 3, fit)
+
+
+def _integral_fit(C: torch.Tensor, G: torch.Tensor, t: torch.Tensor, stride: int
+                  ) -> tuple[torch.Tensor, torch.Tensor, tuple[float, float]]:
+    """(b [3], its covariance [3,3], the noise's (A, q)) of C = G b + noise (C [T,3], G [T,3,3] at
+    times t [T]) by generalised least squares at every stride-th sample: the noise first estimated
+    from C, then from what the fit leaves (a bias would pass for a random walk)."""
+    bias = torch.zeros(3, dtype=C.dtype)
+    for _ in range(2):
+        noise = _noise(C - G @ bias, t, stride)
+        W = _whitener(noise, t[stride::stride])
+        n = len(W)
+        X = (W @ G[stride::stride].reshape(n, 9)).reshape(3 * n, 3)
+        y = (W @ C[stride::stride]).reshape(3 * n)
+        N = X.T @ X
+        bias = torch.linalg.solve(N, X.T @ y)
+    return bias, float((y - X @ bias).square().mean()) * torch.linalg.inv(N), noise
+
+
+def _noise(C: torch.Tensor, t: torch.Tensor, stride: int) -> tuple[float, float]:
+    """(A, q) of the integral's noise C [T,3] (times t [T]): Sigma = A (I + 1 1^T) + q min(t_i, t_j),
+    a stationary part (the orientations' noise, at the span's start and now) and a random walk. An
+    increment over a lag l past the noise's correlation has the variance 2 A + q l: both from the
+    increments at one stride and at four."""
+    lags = (stride, min(4 * stride, len(C) // 2))
+    V = [float((C[lag:] - C[:-lag]).square().sum(-1).mean()) / 3.0 for lag in lags]
+    span = float(t[lags[1]] - t[lags[0]]) if lags[1] > lags[0] else 1.0
+    q = max((V[1] - V[0]) / span, 0.0)
+    return max((V[0] - q * float(t[lags[0]])) / 2.0, 1e-6 * max(V[0], 1e-30)), q
+
+
+def _whitener(noise: tuple[float, float], t: torch.Tensor) -> torch.Tensor:
+    """[n,n] W with W Sigma W^T = I, Sigma the covariance _noise gives at times t [n]."""
+    A, q = noise
+    Sigma = A * (torch.eye(len(t), dtype=t.dtype) + 1.0) + q * torch.minimum(t[:, None], t[None, :])
+    return torch.linalg.inv(torch.linalg.cholesky(Sigma))
 
 
 def _delay(name: str, w_low: torch.Tensor, e: torch.Tensor, tr: torch.Tensor, te: torch.Tensor, time: torch.Tensor,
