@@ -204,6 +204,7 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
         why = final.implausible() or posture.held_by_reference(final, s.model, s.current[0].poses[s.current[1]])
         if why:
             final.notes = "; ".join(filter(None, [final.notes, f"implausible: {why}"]))
+            c.notes = final.notes  # the report's best candidate left is c: it says why it was not kept
             s.rejected.append(final)
             continue
         chosen.append((c, final))
