@@ -65,13 +65,17 @@ def _stacked(given: list[Sample], present: list[int], B: int, name: str, rows: n
     """Field `name` of the given samples at segment rows `rows`, as [B,len(rows),k]; NaN for the
     characters without a sample or without the field."""
     values = [getattr(s, name) for s in given]
-    if len(given) == B and all(v is not None for v in values):  # the usual step: one stack, no fill
+    every_field = all(v is not None for v in values)
+    if values and every_field and len(given) == B:  # the usual step: one stack, no fill
         return np.stack(values)[:, rows]
     width = 4 if name == "quaternion" else 3
     out = np.full((B, len(rows), width), np.nan)
-    for b, v in zip(present, values):  # some characters without a sample or the field: row by row
-        if v is not None:
-            out[b] = v[rows]
+    if values and every_field:  # some characters without a sample: one stack into their rows
+        out[present] = np.stack(values)[:, rows]
+    else:  # a source that carries the field for some characters only (rare): row by row
+        for b, v in zip(present, values):
+            if v is not None:
+                out[b] = v[rows]
     return out
 
 
