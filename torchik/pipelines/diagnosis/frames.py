@@ -150,7 +150,7 @@ def swap_sets(s: Subject) -> list[tuple[str, ...]]:
     below = {g.child: tuple(n for n in analysis.links if n in g.subtree) for g in joint_groups(s.urdf, analysis.links)}
     sets = set()
     for name in large_residual(analysis, b):
-        left = name.replace("Right", "Left", 1) if name.startswith("Right") else name
+        left = counterpart(name) if name.startswith("Right") else name
         for links in ((left,), below.get(left, ())):
             if links and all(counterpart(n) in analysis.links for n in links):
                 sets.add(links)

@@ -135,7 +135,9 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
         if int(tr.sum()) < 8 or int(te.sum()) < 8:
             continue
         e, w_low = e_low[:, i], w_lows[:, i]
-        out += [fitted for fitted in [_bias(name, analysis.e[:, b, i], analysis.R_m[:, b, i], ok[:, i], time)] if fitted]
+        bias = _bias(name, analysis.e[:, b, i], analysis.R_m[:, b, i], ok[:, i], time)
+        if bias is not None:
+            out.append(bias)
         # scale: e = gamma S(w_m), gamma = kappa / (1 + kappa)
         power = float(w_low[tr].square().sum().clamp(min=1e-12))
         gamma = float((e[tr] * w_low[tr]).sum()) / power

@@ -265,13 +265,13 @@ def _check(added: list[Added], links, gain: float, progress: bool, max_samples: 
         for n, effect in enumerate(chosen):
             others = set().union(*(area for m, area in enumerate(areas) if m != n))
             old, new = (_error_apart(e, effect.error, others) for e in (before, after))
-            why = (f"re-tracked with it, the {effect.error} went from {old:.4g} to {new:.4g}" if new > old * (1 + WORSE)
+            rose = new > old * (1 + WORSE)
+            why = (f"re-tracked with it, the {effect.error} went from {old:.4g} to {new:.4g}" if rose
                    else effect.implausible())  # refined, it may have gone where it cannot be
             if not why:
                 kept.append(effect)
                 s.steps.append(Step(effect, before, after))
                 continue
-            rose = new > old * (1 + WORSE)
             if rose and len(chosen) > 1 and (effect.kind, effect.target) not in s.deferred:
                 s.deferred.add((effect.kind, effect.target))  # the others' effect on the error may be what rose
                 say(f"round {round_ + 1}: {effect.kind} at {effect.target} taken back, to be tried alone ({why})")
