@@ -21,12 +21,14 @@ tracking the same recording without the effect (same motion and noise).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -344,6 +346,35 @@ def table(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+_WORKER: dict = {}
+
+
+def _start_worker(args) -> None:
+    """A study process: one torch thread, the diagnosed model loaded once."""
+    from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
+
+    torch.set_num_threads(1)
+    _WORKER.update(args=args, urdf=human_urdf(48), model=load_model("human48"), links=list(TRACKED_LINKS["human48"]))
+
+
+def _diagnosed(case: Case) -> dict:
+    w = _WORKER
+    return run_case(case, w["model"], w["urdf"], w["links"], w["args"])
+
+
+@contextlib.contextmanager
+def _pool(args):
+    """An object with imap: --jobs processes (spawned: torch's threads do not survive a fork), or this one."""
+    if args.jobs <= 1:
+        _start_worker(args)
+        yield SimpleNamespace(imap=map)
+        return
+    import multiprocessing
+
+    with multiprocessing.get_context("spawn").Pool(args.jobs, _start_worker, (args,)) as pool:
+        yield pool
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=10, help="recordings per family (default 10)")
@@ -355,13 +386,15 @@ def main(argv=None) -> int:
                         help=f"comma-separated, of {', '.join(FAMILIES + OPTIONAL)} (default the first six)")
     parser.add_argument("--max-effects", type=int, default=8, help="the loop's rounds (default 8, as torchik diagnose)")
     parser.add_argument("--seed", type=int, default=1, help="the study's seed (default 1)")
+    parser.add_argument("--jobs", type=int, default=1, help="recordings diagnosed at once, each in its own process on "
+                                                           "one thread (default 1)")
     parser.add_argument("--json", metavar="FILE", help="write every recording's result here")
     parser.add_argument("--markdown", metavar="FILE", help="write the table here")
     parser.add_argument("--recordings", metavar="DIR", help="only write each recording to DIR/GROUP_SEED.npz (to time "
                                                             "`torchik diagnose` on them), diagnose none")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
+    from torchik.method.models import TRACKED_LINKS
 
     links = list(TRACKED_LINKS["human48"])
     if args.recordings:
@@ -372,14 +405,13 @@ def main(argv=None) -> int:
             path = Path(args.recordings) / f"{case.group.replace(' ', '_')}_{case.seed}.npz"
             print(save_recording(generate(case, links, args.duration, args.rate)[0], path))
         return 0
-    urdf, model = human_urdf(48), load_model("human48")
     results = []
-    for case in cases(args):
-        r = run_case(case, model, urdf, links, args)
-        results.append(r)
-        print(f"{case.group:>14} seed {case.seed} {case.noise:>5}: {'named' if r['named'] else 'MISSED'}, "
-              f"spurious {r['spurious']}, MNTE {r['mnte_after']:.3g} (clean {r['mnte_clean']:.3g}), {r['seconds']:.0f} s",
-              file=sys.stderr, flush=True)
+    with _pool(args) as pool:
+        for case, r in zip(cases(args), pool.imap(_diagnosed, cases(args))):
+            results.append(r)
+            print(f"{case.group:>14} seed {case.seed} {case.noise:>5}: {'named' if r['named'] else 'MISSED'}, "
+                  f"spurious {r['spurious']}, MNTE {r['mnte_after']:.3g} (clean {r['mnte_clean']:.3g}), "
+                  f"{r['seconds']:.0f} s", file=sys.stderr, flush=True)
     text = table(results)
     print(text)
     if args.json:
