@@ -22,7 +22,8 @@ import torch
 
 from ...io.recording import Recording
 from .analysis import Analysis, simpson
-from .effect import Effect, lowpass_blocks, replace, score, shift
+from .effect import Effect, Score, folds, lowpass_blocks, replace, score, shift
+from .integral import integral_fit, integrated, spacing, whitener
 from .placement import MAX_DELAY
 
 MAX_SCALE = 0.1  # a gyro whose scale is off by more than this is broken, not miscalibrated
@@ -47,6 +48,10 @@ class GyroBias(Effect):
 
     def implausible(self):
         size = float(np.degrees(np.linalg.norm(self.params["bias"])))
+        if "vertical_turn_score" in self.params:
+            return (f"what its gyro shows is a turn at a constant rate about the vertical (score "
+                    f"{self.params['vertical_turn_score']:.0f} with one parameter, against {self.score:.0f} with the "
+                    f"bias' three): a heading drift of this sensor, which also turns its orientations")
         return (f"a bias of {size:.3g} deg/s, beyond the {MAX_BIAS:g} deg/s a gyro has: a sign of a stream in other "
                 f"units or axes, or of orientations that are not this sensor's" if size > MAX_BIAS else "")
 
@@ -157,81 +162,53 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
     return out
 
 
-SPACING = 0.5  # s: the integrals' samples the bias is fitted on, apart by more than the orientations' noise is correlated
-
-
 def _bias(name: str, e: torch.Tensor, R: torch.Tensor, ok: torch.Tensor, time: torch.Tensor) -> GyroBias | None:
     """The GyroBias of one gyro from its disagreement e [T,3] with its orientations R [T,3,3] (valid
-    where ok [T]), fitted in integral form: C(t) = int e dt = G(t) b + noise, G(t) = int R dt, on the
-    first half of the time and scored on the second, each integrated from its own start (halves of
-    its own, not fit's alternating blocks: a second's span shows a bias no better than e does); its
-    value then from the whole time. None where either half has under 8 valid samples.
+    where ok [T]), fitted in integral form: C(t) = int e dt = G(t) b + noise, G(t) = int R dt, on one
+    half of the time and scored on the other, each integrated from its own start (halves of its own,
+    not fit's alternating blocks: a second's span shows a bias no better than e does), both ways
+    round (two folds: a fold alone leaves half the evidence unused, and missed biases of 1-1.6 deg/s
+    on feet that the other fold shows); its value then from the whole time. None where either half
+    has under 8 valid samples.
 
     The orientations' noise n enters e differentiated, a blue noise whose integral is n(t) - n(t0):
     told from a bias only over long spans, not sample by sample. But the integral also holds a random
     walk (the gyro's own noise, and n x w where a world-frame gyro and the noisy orientations
     disagree on the frame): C's noise is modelled as A (I + 1 1^T) + q min(t_i, t_j) at samples
-    SPACING apart, A and q from how the train half's increments grow with their lag (once what the fit
+    integral.SPACING apart, A and q from how the train half's increments grow with their lag (once what the fit
     leaves), and both sides of the test half whitened by it before the score (which then sees
     independent samples)."""
-    dt = float(torch.diff(time).median())
-    stride = max(1, int(round(SPACING / dt)))
+    stride = spacing(time)
     first = torch.arange(len(time)) < len(time) // 2
-
-    def integral(span: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        keep = ok & span
-        C = torch.cumsum(torch.where(keep[:, None], e, 0.0), 0)[keep] * dt
-        G = torch.cumsum(torch.where(keep[:, None, None], R, 0.0), 0)[keep] * dt
-        # from the span's first sample, which then holds nothing (its noise is the others' constant)
-        return C - C[0], G - G[0], time[keep] - time[keep][0]
-
-    C_tr, G_tr, t_tr = integral(first)
-    C_te, G_te, t_te = integral(~first)
-    if min(len(C_tr), len(C_te)) < 8:  # as every fit here: too short a recording to fit on
+    halves = integrated(e, R, ok & first, time), integrated(e, R, ok & ~first, time)
+    if min(len(halves[0][0]), len(halves[1][0])) < 8:  # as every fit here: too short a recording to fit on
         return None
-    stride = min(stride, min(len(C_tr), len(C_te)) // 4)  # at least four samples a half
-    bias, _, noise = _integral_fit(C_tr, G_tr, t_tr, stride)
-    W = _whitener(noise, t_te[stride::stride])  # the train half's noise model: nothing of the test half chooses it
-    fit = score(W @ C_te[stride::stride], W @ (C_te - G_te @ bias)[stride::stride], 3)
+    stride = min(stride, min(len(halves[0][0]), len(halves[1][0])) // 4)  # at least four samples a half
+    # both folds: each half's fit scored on the other half, so all the time is evidence once
+    fit = folds(*(_held_out(halves[k], halves[1 - k], stride) for k in (0, 1)), k=3)
     # the value itself from the whole time, once the score has shown it holds on time it was not fitted on
-    bias, cov, _ = _integral_fit(*integral(torch.ones_like(first)), stride)
-    return GyroBias("gyro_bias", name, dict(bias=bias.tolist()), dict(bias=cov.diagonal().sqrt().tolist()), 3, fit)
+    bias, cov, _ = integral_fit(*integrated(e, R, ok, time), stride)
+    params: dict = dict(bias=bias.tolist())
+    # a heading drift makes e a constant -rate z in the world frame: one parameter for what a bias
+    # would need three, and where it explains the integral as well, it is the drift
+    vertical = torch.tensor([0.0, 0.0, -1.0], dtype=e.dtype).expand(len(time), 3)[..., None]
+    turns = integrated(e, vertical, ok & first, time), integrated(e, vertical, ok & ~first, time)
+    turn = folds(*(_held_out(turns[k], turns[1 - k], stride) for k in (0, 1)), k=1)
+    if turn.score >= fit.score:
+        params["vertical_turn_score"] = turn.score
+    return GyroBias("gyro_bias", name, params, dict(bias=cov.diagonal().sqrt().tolist()), 3, fit)
 
 
-def _integral_fit(C: torch.Tensor, G: torch.Tensor, t: torch.Tensor, stride: int
-                  ) -> tuple[torch.Tensor, torch.Tensor, tuple[float, float]]:
-    """(b [3], its covariance [3,3], the noise's (A, q)) of C = G b + noise (C [T,3], G [T,3,3] at
-    times t [T]) by generalised least squares at every stride-th sample: the noise first estimated
-    from C, then from what the fit leaves (a bias would pass for a random walk)."""
-    bias = torch.zeros(3, dtype=C.dtype)
-    for _ in range(2):
-        noise = _noise(C - G @ bias, t, stride)
-        W = _whitener(noise, t[stride::stride])
-        n = len(W)
-        X = (W @ G[stride::stride].reshape(n, 9)).reshape(3 * n, 3)
-        y = (W @ C[stride::stride]).reshape(3 * n)
-        N = X.T @ X
-        bias = torch.linalg.solve(N, X.T @ y)
-    return bias, float((y - X @ bias).square().mean()) * torch.linalg.inv(N), noise
+Integral = tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # (C, int G, t) of integral.integrated
 
 
-def _noise(C: torch.Tensor, t: torch.Tensor, stride: int) -> tuple[float, float]:
-    """(A, q) of the integral's noise C [T,3] (times t [T]): Sigma = A (I + 1 1^T) + q min(t_i, t_j),
-    a stationary part (the orientations' noise, at the span's start and now) and a random walk. An
-    increment over a lag l past the noise's correlation has the variance 2 A + q l: both from the
-    increments at one stride and at four."""
-    lags = (stride, min(4 * stride, len(C) // 2))
-    V = [float((C[lag:] - C[:-lag]).square().sum(-1).mean()) / 3.0 for lag in lags]
-    span = float(t[lags[1]] - t[lags[0]]) if lags[1] > lags[0] else 1.0
-    q = max((V[1] - V[0]) / span, 0.0)
-    return max((V[0] - q * float(t[lags[0]])) / 2.0, 1e-6 * max(V[0], 1e-30)), q
-
-
-def _whitener(noise: tuple[float, float], t: torch.Tensor) -> torch.Tensor:
-    """[n,n] W with W Sigma W^T = I, Sigma the covariance _noise gives at times t [n]."""
-    A, q = noise
-    Sigma = A * (torch.eye(len(t), dtype=t.dtype) + 1.0) + q * torch.minimum(t[:, None], t[None, :])
-    return torch.linalg.inv(torch.linalg.cholesky(Sigma))
+def _held_out(train: Integral, test: Integral, stride: int) -> Score:
+    """The score, on the test half's integral, of the effect fitted on the train half's, computed
+    without its parameters' penalty (`folds` counts them once for both folds)."""
+    bias, _, noise = integral_fit(*train, stride)
+    C_te, G_te, t_te = test
+    W = whitener(noise, t_te[stride::stride])  # the train half's noise model: nothing of the test half chooses it
+    return score(W @ C_te[stride::stride], W @ (C_te - G_te @ bias)[stride::stride], 0)
 
 
 def _delay(name: str, w_low: torch.Tensor, e: torch.Tensor, tr: torch.Tensor, te: torch.Tensor, time: torch.Tensor,

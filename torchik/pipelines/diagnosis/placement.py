@@ -17,6 +17,7 @@ about a link's own joint axes is a joint offset to the data, and is reported as 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -26,6 +27,7 @@ import torch
 from ...method import so3
 from .analysis import Analysis
 from .effect import Effect, Score, combine, lowpass_blocks, replace, rotation_about, score, shift
+from .integral import agreement
 
 MAX_DELAY = 0.25  # s: a sensor later than this on the others is no delay but a different recording
 MAX_DRIFT = 5.0  # deg/s: heading drift of inertial sensors is a fraction of this
@@ -177,8 +179,11 @@ class SensorDelay(Effect):
 
     def implausible(self):
         delay = self.params["delay"]
+        if delay < 0:  # a sensor's samples cannot come before it measured them
+            return (f"the sensor {-1e3 * delay:.3g} ms early on the others, which no sensor is: what the residual "
+                    f"carries is the delay between it and a neighbour, a neighbour late")
         return (f"a delay of {delay:.3g} s, beyond the {MAX_DELAY} s a sensor lags: a sign of a sensor of "
-                f"another take, or of a clock error" if abs(delay) > MAX_DELAY else "")
+                f"another take, or of a clock error" if delay > MAX_DELAY else "")
 
     def summary(self):
         return f"the {self.target} sensor is late on the others by {1e3 * self.params['delay']:.1f} ms"
@@ -246,8 +251,18 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
         if not head.identified.shape[1]:
             out.append(HeadingDrift("heading_drift", name, notes=UNOBSERVABLE))
         else:
-            out.append(HeadingDrift("heading_drift", name, dict(rate=float(head.theta[0]), t0=t0),
-                                    dict(rate=float(head.cov[0, 0].clamp(min=0).sqrt())), 1, head.fit))
+            params, fit_d = dict(rate=float(head.theta[0]), t0=t0), head.fit
+            if not bool(derived[i]):
+                # a drifting heading turns the link's gyro with it (e_z = -rate): what its integral says,
+                # for or against, joins the score. The low-passed e_z of the fit barely tells a drift of
+                # a link's own sensor from its neighbour's where a ball joint takes up the turn between
+                # them and only the other side's joint shows it
+                e_z = analysis.e[:, b, i, 2:]
+                params["own_gyro_score"] = agreement(e_z, -torch.ones_like(e_z)[..., None], ok[:, i], time,
+                                                     head.theta[:1])
+                fit_d = dataclasses.replace(fit_d, score=fit_d.score + params["own_gyro_score"])
+            out.append(HeadingDrift("heading_drift", name, params, dict(rate=float(head.cov[0, 0].clamp(min=0).sqrt())),
+                                    1, fit_d))
     return out
 
 

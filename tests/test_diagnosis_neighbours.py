@@ -1,0 +1,53 @@
+"""Effects on one link told from the same effect on its neighbour (issue 18, item 2).
+
+A delay or a heading drift of one sensor shows in the joints between it and its neighbours, which
+the neighbour's opposite effect explains as well. What tells them apart is physical:
+
+- a sensor can be late on the others, never early: a late LeftUpperLeg sensor is named there, not
+  as a LeftLowerLeg sensor early by the same time (placement.SensorDelay.implausible);
+- a drifting heading turns the sensor's own gyro with it, and its orientations: a drift of the
+  RightUpperArm sensor (whose turn the shoulder's ball joint takes up) is named as that, not as a
+  gyro bias of the arm or a drift of a neighbour (placement.fit: the gyro's integral in the drift's
+  score; gyro._bias: a constant turn about the vertical is a drift, not a bias).
+
+Recordings: Human48 walking, 8 s at 50 Hz, the scenarios' sensor noise; the effect injected with
+Effect.inject.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
+from torchik.pipelines.diagnosis.loop import diagnose
+from torchik.pipelines.diagnosis.placement import HeadingDrift, SensorDelay
+from torchik.synthetic.scenarios import scenario
+
+LINKS = TRACKED_LINKS["human48"]
+
+
+@pytest.fixture(scope="module")
+def walk(one_thread):
+    model = load_model("human48")
+    return model, human_urdf(48), scenario("walking", model, LINKS, 8.0, 50.0, seed=4, orientation_noise=0.01,
+                                           gyro_noise=0.02)
+
+
+def _kept(walk, effect):
+    model, urdf, recording = walk
+    d, = diagnose(model, urdf, [effect.inject(recording)], LINKS, max_effects=3)
+    return d
+
+
+def test_a_late_sensor_is_named_on_itself_not_on_its_neighbour_early(walk):
+    d = _kept(walk, SensorDelay("sensor_delay", "LeftUpperLeg", dict(delay=0.06)))
+    delays = {e.target: e.params["delay"] for e in d.effects if e.kind == "sensor_delay"}
+    assert set(delays) == {"LeftUpperLeg"}, d.effects
+    assert delays["LeftUpperLeg"] == pytest.approx(0.06, abs=0.01)
+
+
+def test_a_heading_drift_is_named_on_the_sensor_whose_gyro_turns(walk):
+    d = _kept(walk, HeadingDrift("heading_drift", "RightUpperArm", dict(rate=math.radians(1.5), t0=0.0)))
+    assert {(e.kind, e.target) for e in d.effects} == {("heading_drift", "RightUpperArm")}, d.effects
