@@ -201,14 +201,14 @@ class Case:
         return {0: "clean", 1: self.families[0] if self.families else ""}.get(len(self.families), "two effects")
 
 
-def generate(case: Case, links, duration: float, rate: float, gyro_frame: str = "estimated"):
+def generate(case: Case, links, duration: float, rate: float, gyro_frame: str = "true"):
     """(recording with the effects, the same without them, the Injected list, noise levels).
 
     gyro_frame: the rotation that takes each gyro's sensor-frame rate into the world frame the
-    recording stores: "estimated", the recording's own (noisy) orientation, as a suit's software or
-    any user of an IMU must (nothing else knows the true one); "true", the noise-free orientation,
-    which no device has: the gyro and the orientations then disagree on the frame by the orientation
-    noise n, a term n x w in their difference that a fast link's rate w makes large."""
+    recording stores: "true" (the study's from its start), the noise-free orientation, which no
+    device has: the gyro and the orientations then disagree on the frame by the orientation noise n,
+    a term n x w in their difference that a fast link's rate w makes large; "estimated", the
+    recording's own (noisy) orientation, as a suit's software or any user of an IMU must."""
     from torchik.io.recording import Recording
 
     rng = np.random.default_rng(case.seed)

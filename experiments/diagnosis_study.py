@@ -149,9 +149,10 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=1, help="the study's seed (default 1)")
     parser.add_argument("--only", type=lambda s: {int(x) for x in s.split(",")}, default=set(),
                         help="comma-separated seeds: only these of the study's recordings (as the table names them)")
-    parser.add_argument("--gyro-frame", choices=("estimated", "true"), default="estimated",
-                        help="the orientation that rotates the gyros into the world frame: the recording's own "
-                             "(default, as a device does) or the noise-free one (see generate)")
+    parser.add_argument("--gyro-frame", choices=("true", "estimated"), default="true",
+                        help="the orientation that rotates the gyros into the world frame: the noise-free one "
+                             "(default, as the study always did) or the recording's own, as a device does "
+                             "(diagnosis_generator.generate)")
     parser.add_argument("--jobs", type=int, default=1, help="recordings diagnosed at once, each in its own process on "
                                                            "one thread (default 1)")
     parser.add_argument("--json", metavar="FILE", help="write every recording's result here")
