@@ -51,22 +51,44 @@ def test_a_burst_longer_than_the_backlog_loses_its_oldest_samples():
     assert mailbox.skipped == {0: 2, 3: 2}
 
 
-def test_the_loop_catches_up_while_its_median_step_takes_at_most_half_a_frame():
+def sample(arrival: float) -> dict[int, Sample]:
+    return {0: Sample(0, 0, 0.0, arrival, ("a",), np.array([[1.0, 0.0, 0.0, 0.0]]), None, None, None)}
+
+
+def stepped(catch_up: CatchUp, steps: int, period: float, cost: float, behind: bool) -> None:
+    """`steps` steps a `period` apart, each taking `cost` from the take to its end; the sample of each
+    came just before the step began, or (behind) before the previous one ended."""
+    for k in range(steps):
+        start = k * period
+        catch_up.record(sample(start - period if behind else start - 1e-6), start, start + cost)
+
+
+def test_the_loop_catches_up_while_its_median_cost_of_a_sample_is_at_most_half_a_frame():
     rate, backlog = 240.0, 4
     half = 0.5 / rate
     fast, slow, given = CatchUp(), CatchUp(), CatchUp(backlog)
-    for k in range(RECENT):
-        fast.record(half * (50.0 if k % 4 == 0 else 0.9))  # a slow step now and then: still catching up
-        slow.record(half * 1.1)
-        given.record(half * 1.1)
+    stepped(fast, RECENT, 2 * half, 0.9 * half, behind=False)
+    fast.record(sample(RECENT * 2 * half), RECENT * 2 * half, RECENT * 2 * half + 50 * half)  # a slow step now and then
+    stepped(slow, RECENT, 2 * half, 1.1 * half, behind=False)
+    stepped(given, RECENT, 2 * half, 1.1 * half, behind=False)
     assert fast.keep(rate) == BACKLOG and slow.keep(rate) == 1
     assert given.keep(rate) == backlog  # a backlog given is kept whole, however slow the loop
 
 
+def test_a_loop_behind_its_samples_counts_the_whole_time_between_its_steps_not_only_the_steps():
+    """Behind a burst, the loop's short steps come 1.1 half-frames apart (it lost its core between
+    them): it catches up slower than its steps say, and steps to the newest."""
+    rate = 240.0
+    half = 0.5 / rate
+    behind, waiting = CatchUp(), CatchUp()
+    stepped(behind, RECENT, 1.1 * half, 0.2 * half, behind=True)
+    stepped(waiting, RECENT, 2.2 * half, 0.2 * half, behind=False)  # the same steps, each waiting for its sample
+    assert behind.keep(rate) == 1 and waiting.keep(rate) == BACKLOG
+
+
 def test_the_first_steps_which_carry_the_set_up_do_not_make_the_loop_step_over_samples():
     catch_up = CatchUp()
-    for _ in range(EVIDENCE - 1):
-        catch_up.record(1.0)  # set-up, a compiled step's capture
+    stepped(catch_up, EVIDENCE - 1, 1.0, 1.0, behind=False)  # set-up, a compiled step's capture
     assert catch_up.keep(240.0) == BACKLOG
-    catch_up.record(1.0)
+    stepped(catch_up, 1, 1.0, 1.0, behind=False)
     assert catch_up.keep(240.0) == 1

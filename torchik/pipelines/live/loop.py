@@ -104,10 +104,11 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
             if got:
                 assert source.rate is not None
                 loop.step(got, source.rate, lambda: _counters(source, mailbox, loop), mailbox.last_skips)
-                catch_up.record(time.perf_counter() - now)
             elif mailbox.finished:
                 break
             collector.collect()  # after the step's push: the next sample is the furthest off
+            if got:
+                catch_up.record(got, now, time.perf_counter())
             if now - last_check >= min(0.05, options.stall_s / 4):  # not every step: a look at every character
                 last_check = now
                 loop.check_stalls(now, options.stall_s, mailbox)

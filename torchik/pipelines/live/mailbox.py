@@ -25,18 +25,27 @@ EVIDENCE = 5  # before this many steps the loop is taken to be fast: the first s
 class CatchUp:
     """How many of each character's newest queued samples the loop keeps (`keep`). A backlog given
     is kept whole, however slow the loop (1: always the newest). Without one (None), up to
-    `BACKLOG` are kept while the loop's median step of the last `RECENT` takes at most half the
-    frame period, otherwise only the newest: tracking q queued samples at c <= T/2 a step, while
-    new ones come every T, takes q c / (1 - c/T) <= q T, so the loop is back at the newest no
-    later than the burst took to build up, and a loop too slow for that never runs behind."""
+    `BACKLOG` are kept while the loop's median cost of a sample over its last `RECENT` steps is at
+    most half the frame period, otherwise only the newest: tracking q queued samples at c <= T/2
+    each, while new ones come every T, takes q c / (1 - c/T) <= q T, so the loop is back at the
+    newest no later than the burst took to build up, and a loop too slow for that never runs
+    behind."""
 
     def __init__(self, backlog: int | None = None):
         self.backlog, self.adaptive = backlog or BACKLOG, backlog is None
         self.recent: deque[float] = deque(maxlen=RECENT)
+        self.last_end: float | None = None
 
-    def record(self, seconds: float) -> None:
-        """The time the loop took for one step: its targets, the step, the push, the history."""
-        self.recent.append(seconds)
+    def record(self, got: dict[int, Sample], started: float, ended: float) -> None:
+        """A step of the loop over the samples `got`, from the take's return (`started`) to the end
+        of what follows its push (`ended`). When they had all come before the previous step ended,
+        the loop was behind them, and a sample cost it the whole time since that end: the take, the
+        pipe, the collector and any time it lost its core, which the step's own time leaves out
+        (on a loaded machine the loop then caught up slower than its steps said)."""
+        behind = self.last_end is not None and max(s.arrival for s in got.values()) <= self.last_end
+        since = self.last_end if behind and self.last_end is not None else started
+        self.recent.append(ended - since)
+        self.last_end = ended
 
     def keep(self, rate: float) -> int:
         if not self.adaptive or len(self.recent) < EVIDENCE or float(np.median(self.recent)) <= 0.5 / rate:
