@@ -128,13 +128,13 @@ def test_frames_the_loop_steps_over_do_not_restart_a_character_from_the_zero_pos
 
 @pytest.mark.parametrize("backlog", [1, None], ids=["newest only", "default"])
 def test_a_burst_after_the_sender_stalled_is_tracked_frame_by_frame_as_track_does(model, backlog):
-    """A sender that loses its core for 0.2 s then sends the 10 frames it owes at once, as a suit's
+    """A sender that loses its core for 0.1 s then sends the 5 frames it owes at once, as a suit's
     software does after a stall. With the default backlog the loop, whose steps are far shorter
     than a 50 Hz frame, tracks every one of them in order, each with its own dt (the estimates are
     `track`'s on the same frames) and skips none; stepping to the newest (backlog 1) skips some."""
     walk = scenario("walking", model, TRACKED_LINKS["human66"], duration=2.0, rate=50.0)
     source = MvnSource(Url("udp", "127.0.0.1", 0))
-    stall = lambda k: time.sleep(0.2) if k == 40 else None  # noqa: E731
+    stall = lambda k: time.sleep(0.1) if k == 40 else None  # noqa: E731
     sender = threading.Thread(target=replay, args=(walk, Url("udp", "127.0.0.1", source.address[1])),
                               kwargs=dict(lead_in_s=0.1, on_frame=stall))
     sender.start()

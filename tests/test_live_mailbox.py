@@ -1,6 +1,7 @@
 """The mailbox between the receiver and the live loop, and the loop's catching up
 (torchik/pipelines/live/mailbox.py): a burst of samples is taken oldest first, none skipped, while
-the loop keeps them all; keeping fewer steps to the newest and counts the others; without a
+the loop keeps them all; keeping fewer, a longer burst, or samples stepped over before step to the
+newest and count the others; without a
 backlog given the loop keeps them all while its steps take at most half a frame, and from its
 first steps on; a backlog given is kept whole."""
 
@@ -43,12 +44,19 @@ def test_keeping_one_steps_to_the_newest_and_counts_the_others_once():
     assert mailbox.skipped == {0: 4, 3: 4}
 
 
-def test_a_burst_longer_than_the_backlog_loses_its_oldest_samples():
+def test_a_burst_longer_than_the_backlog_steps_to_the_newest_rather_than_staying_behind():
     mailbox = Mailbox(backlog=3)
     burst(mailbox, 5)
-    assert taken(mailbox, keep=3) == [({0: 2, 3: 2}, {0: 2, 3: 2}), ({0: 3, 3: 3}, {0: 0, 3: 0}),
-                                      ({0: 4, 3: 4}, {0: 0, 3: 0})]
-    assert mailbox.skipped == {0: 2, 3: 2}
+    assert taken(mailbox, keep=3) == [({0: 4, 3: 4}, {0: 4, 3: 4})]
+    assert mailbox.skipped == {0: 4, 3: 4}
+
+
+def test_a_character_whose_samples_the_receiver_stepped_over_steps_to_its_newest():
+    mailbox = Mailbox(backlog=8)
+    mailbox.count_skipped(0, 2)  # as a receiver process reports its own
+    burst(mailbox, 3)
+    assert taken(mailbox, keep=8) == [({0: 2, 3: 0}, {0: 4, 3: 0}), ({3: 1}, {3: 0}), ({3: 2}, {3: 0})]
+    assert mailbox.skipped == {0: 4}
 
 
 def sample(arrival: float) -> dict[int, Sample]:

@@ -39,9 +39,9 @@ from .viewer import LiveViewer
 
 @dataclass
 class LiveOptions:
-    """backlog: samples queued per character, all tracked in order (1: always the newest); None: up
-    to 32, tracked in order while the loop's steps take at most half a frame, else the newest only
-    (`CatchUp`); stall_s: silence after which a
+    """backlog: samples queued per character, all tracked in order, the newest once more came (1:
+    always the newest); None: up to `BACKLOG`, so while the loop's cost of a sample is at most half
+    a frame, else the newest only (`CatchUp`); stall_s: silence after which a
     character leaves the batch and the source is reported stalled; gather_s: how long a step waits
     for the rest of a frame's characters (None: half a frame); duration_s: stop after this
     long; stop_when_idle_s: stop once the source has been silent this long (replays, tests); None:

@@ -55,9 +55,9 @@ class CatchUp:
 
 class Mailbox:
     """Complete samples from the receiver to the tracking loop: per character a deque of at most
-    `backlog`; putting into a full one steps over its oldest sample (counted in `skipped`), and so
-    does a take that keeps fewer. `keep`: how many the loop last asked to keep (a receiver process
-    queues no more than that)."""
+    `backlog`; putting into a full one steps over its oldest sample (counted in `skipped`), and a
+    take after that, or one that keeps fewer than are queued, steps to the newest. `keep`: how
+    many the loop last asked to keep (a receiver process queues no more than that)."""
 
     def __init__(self, backlog: int = BACKLOG):
         self.backlog = self.keep = backlog
@@ -87,9 +87,10 @@ class Mailbox:
             self.condition.notify()
 
     def take(self, active, timeout: float, gather: float, keep: int | None = None) -> dict[int, Sample]:
-        """The oldest of the `keep` newest queued samples (None: the backlog) of each character that
-        has one, the older ones stepped over: waits up to `timeout` for the first, then up to
-        `gather` for every `active` character to have one."""
+        """Of each character that has a sample queued, the oldest while it has at most `keep` (None:
+        the backlog) and none was stepped over since its last take, else the newest (the others
+        stepped over): waits up to `timeout` for the first, then up to `gather` for every
+        `active` character to have one."""
         with self.condition:
             self.condition.wait_for(lambda: self.finished or any(self.queues.values()), timeout)
             deadline = time.perf_counter() + gather
@@ -99,10 +100,12 @@ class Mailbox:
                     break
             self.keep = self.backlog if keep is None else min(keep, self.backlog)
             for c, queue in self.queues.items():
-                if len(queue) > self.keep:
-                    self.count_skipped(c, len(queue) - self.keep)
-                while len(queue) > self.keep:
-                    queue.popleft()
+                # behind by more than it keeps (samples already stepped over, here or in the
+                # receiver): on to the newest, rather than staying that far behind
+                if (self.unstepped.get(c, 0) or len(queue) > self.keep) and len(queue) > 1:
+                    self.count_skipped(c, len(queue) - 1)
+                    while len(queue) > 1:
+                        queue.popleft()
             got = {c: q.popleft() for c, q in self.queues.items() if q}
             self.last_skips = {c: self.unstepped.pop(c, 0) for c in got}
             return got
