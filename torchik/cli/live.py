@@ -72,9 +72,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--out", metavar="NPZ", help="write the trajectory here when the session stops (character c > 0: "
                    "NAME.c.npz)")
     p.add_argument("--report", metavar="JSON", help="write the report (counters, errors, latency) here at the end")
-    p.add_argument("--backlog", type=int, metavar="N", help="samples queued per character before the oldest is "
-                   "stepped over, all tracked in order (1: always the newest; default: up to "
-                   f"{BACKLOG}, tracked in order while a step takes at most half a frame, else the newest only)")
+    p.add_argument("--backlog", type=int, metavar="N", help="frames per character that came at once tracked in "
+                   "order, each with its own dt; further behind, the newest (1: always the newest; default "
+                   f"{BACKLOG}, and the newest only while a step costs more than half a frame)")
     p.add_argument("--receiver", choices=("process", "thread"), default="process",
                    help="receive a udp:// stream in a process of its own (default: the tracker then never waits for "
                         "the receiver's Python) or in a thread of the tracker's")

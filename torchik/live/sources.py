@@ -11,7 +11,8 @@ def open_source(text: str, rate: float | None = None, timeout: float = 5.0, mvn_
     rate when known (else the source finds it). timeout: how long an LSL stream is looked for;
     mvn_position_scale: metres per unit of an MVN stream's positions (`torchik.live.mvn`);
     receiver_process: receive a udp:// stream in a process of its own (`receiver.py`), keeping per
-    character its newest `backlog` samples (None: `BACKLOG`; TCP and LSL streams are received in this process)."""
+    character at most its newest `backlog` samples (None: `BACKLOG`; TCP and LSL streams are
+    received in this process)."""
     url = parse_url(text)
     if url.scheme == "lsl":
         from .lsl import LslSource

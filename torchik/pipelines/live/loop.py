@@ -39,12 +39,12 @@ from .viewer import LiveViewer
 
 @dataclass
 class LiveOptions:
-    """backlog: samples queued per character, all tracked in order, the newest once more came (1:
-    always the newest); None: up to `BACKLOG`, so while the loop's cost of a sample is at most half
-    a frame, else the newest only (`CatchUp`); stall_s: silence after which a
-    character leaves the batch and the source is reported stalled; gather_s: how long a step waits
-    for the rest of a frame's characters (None: half a frame); duration_s: stop after this
-    long; stop_when_idle_s: stop once the source has been silent this long (replays, tests); None:
+    """backlog: samples per character tracked in order when they come at once; beyond, the loop steps
+    to the newest (1: always the newest); None: `BACKLOG`, and the newest only while the loop's
+    cost of a sample is over half a frame (`CatchUp`). stall_s: silence after which a character
+    leaves the batch and the source is reported stalled; gather_s: how long a step waits for the
+    rest of a frame's characters (None: half a frame); duration_s: stop after this long;
+    stop_when_idle_s: stop once the source has been silent this long (replays, tests); None:
     run until Ctrl-C. keep_states: keep every step's states for the trajectories (`--out`); without,
     only what the report needs."""
 

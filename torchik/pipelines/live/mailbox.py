@@ -2,10 +2,10 @@
 queued samples the loop tracks (`CatchUp`).
 
 Samples come in bursts even from a steady stream: a sender, a receiver or a tracker that loses its
-core for tens of milliseconds (measured: 18-250 ms on a shared 2-core machine) leaves a few frames
-waiting at once. A loop whose step is far shorter than the frame period can track all of them in
-order, each with its own dt, and be back at the newest soon; one that is not as fast steps to the
-newest and counts the rest as skipped, so that its latency never grows with a queue.
+core for some milliseconds (tens on a loaded 2-core machine) leaves a few frames waiting at once. A
+loop whose step is far shorter than the frame period tracks all of them in order, each with its
+own dt, and is soon back at the newest; a loop further behind than `BACKLOG` frames, or not as
+fast, steps to the newest and counts the rest as skipped, so that it never stays behind.
 """
 
 from __future__ import annotations
@@ -23,13 +23,12 @@ EVIDENCE = 5  # before this many steps the loop is taken to be fast: the first s
 
 
 class CatchUp:
-    """How many of each character's newest queued samples the loop keeps (`keep`). A backlog given
-    is kept whole, however slow the loop (1: always the newest). Without one (None), up to
-    `BACKLOG` are kept while the loop's median cost of a sample over its last `RECENT` steps is at
-    most half the frame period, otherwise only the newest: tracking q queued samples at c <= T/2
-    each, while new ones come every T, takes q c / (1 - c/T) <= q T, so the loop is back at the
-    newest no later than the burst took to build up, and a loop too slow for that never runs
-    behind."""
+    """How many queued samples per character the loop tracks in order (`keep`). A backlog given is
+    kept, however slow the loop (1: always the newest). Without one (None), `BACKLOG` while the
+    loop's median cost of a sample over its last `RECENT` steps is at most half the frame period,
+    otherwise 1: tracking q queued samples at c <= T/2 each, while new ones come every T, takes
+    q c / (1 - c/T) <= q T, so the loop is back at the newest no later than the burst took to
+    build up, and a loop too slow for that does not fall behind."""
 
     def __init__(self, backlog: int | None = None):
         self.backlog, self.adaptive = backlog or BACKLOG, backlog is None
