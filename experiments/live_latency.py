@@ -2,12 +2,13 @@
 
 For each setting (1 character at 60, 120 and 240 Hz; 8 and 64 characters at 100 Hz) a separate
 process replays a generated walk as Xsens MVN streams it (UDP, loopback, in real time), and the
-live loop of `torchik live` tracks it (human66, default settings: a burst of queued samples is
-tracked in order while the step takes at most half a frame, else the newest only; `--backlog 1`:
-always the newest) and publishes every character's joint positions on an LSL outlet. Latency: from the
-moment the datagram that completed a sample was read off the socket to the return of the LSL
-push of its estimate. Skipped: samples stepped over because the tracker was still busy. The
-first second is left out (model set-up, first steps).
+live loop of `torchik live` tracks it (human66, default settings: a burst of up to 8 samples is
+tracked in order while a sample costs the loop at most half a frame, else the newest only;
+`--backlog 1`: always the newest) and publishes every character's joint positions on an LSL
+outlet. Latency: from the moment the datagram that completed a sample was read off the socket to
+the return of the LSL push of its estimate (a sample caught up after a burst counts its wait).
+Skipped: samples stepped over because the tracker was still busy. The first second is left out
+(model set-up, first steps).
 
 Targets (issue 17): 1 character at 240 Hz with p99 <= 2 ms and nothing skipped; 64 characters
 at 100 Hz with p99 <= 10 ms.
