@@ -2,11 +2,13 @@
 
 For each setting (1 character at 60, 120 and 240 Hz; 8 and 64 characters at 100 Hz) a separate
 process replays a generated walk as Xsens MVN streams it (UDP, loopback, in real time), and the
-live loop of `torchik live` tracks it (human66, default settings, backlog 1: always the newest
-sample) and publishes every character's joint positions on an LSL outlet. Latency: from the
-moment the datagram that completed a sample was read off the socket to the return of the LSL
-push of its estimate. Skipped: samples stepped over because the tracker was still busy. The
-first second is left out (model set-up, first steps).
+live loop of `torchik live` tracks it (human66, default settings: a burst of up to 8 samples is
+tracked in order while a sample costs the loop at most half a frame, else the newest only;
+`--backlog 1`: always the newest) and publishes every character's joint positions on an LSL
+outlet. Latency: from the moment the datagram that completed a sample was read off the socket to
+the return of the LSL push of its estimate (a sample caught up after a burst counts its wait).
+Skipped: samples stepped over because the tracker was still busy. The first second is left out
+(model set-up, first steps).
 
 Targets (issue 17): 1 character at 240 Hz with p99 <= 2 ms and nothing skipped; 64 characters
 at 100 Hz with p99 <= 10 ms.
@@ -38,6 +40,8 @@ import time
 import numpy as np
 import torch
 
+from torchik.live.sample import BACKLOG
+
 SETTINGS = ((1, 60.0), (1, 120.0), (1, 240.0), (8, 100.0), (64, 100.0))  # (characters, rate Hz)
 WARM_UP_S = 1.0
 
@@ -57,7 +61,7 @@ def _replay(port: int, characters: int, rate: float, duration: float, cpu) -> No
 
 
 def measure(characters: int, rate: float, duration: float, receiver: str = "process", compile: bool = False,
-            warm_up: float = WARM_UP_S) -> dict:
+            warm_up: float = WARM_UP_S, backlog: int | None = None) -> dict:
     """One setting's latency, skips and step times after `warm_up` s, and the CPU seconds of the
     tracker's thread (set-up included), the receiver (its process from its first datagram, or the
     other threads of the tracker's process) and the replay (streaming only)."""
@@ -68,7 +72,7 @@ def measure(characters: int, rate: float, duration: float, receiver: str = "proc
 
     model = load_model("human66")
     links = TRACKED_LINKS["human66"]
-    source = open_source("udp://127.0.0.1:0", receiver_process=receiver == "process")
+    source = open_source("udp://127.0.0.1:0", receiver_process=receiver == "process", backlog=backlog)
     context = multiprocessing.get_context("spawn")
     replay_cpu = context.Value("d", float("nan"))
     sender = context.Process(target=_replay, args=(source.address[1], characters, rate, duration + warm_up, replay_cpu))
@@ -76,7 +80,7 @@ def measure(characters: int, rate: float, duration: float, receiver: str = "proc
     publisher = Publisher(f"torchik-latency-{characters}-{rate:g}", model, rate=rate)
     thread_start, process_start = time.thread_time(), time.process_time()
     result = track_live(source, model, lambda names: Selection.build(names, links), TrackerSettings(compile=compile),
-                        publisher=publisher, options=LiveOptions(backlog=1, stop_when_idle_s=1.0, keep_states=False))
+                        publisher=publisher, options=LiveOptions(backlog=backlog, stop_when_idle_s=1.0, keep_states=False))
     tracker_cpu, process_cpu = time.thread_time() - thread_start, time.process_time() - process_start
     sender.join()
     kept = lambda values: values[int(len(values) * warm_up / (duration + warm_up)):]  # noqa: E731
@@ -85,7 +89,7 @@ def measure(characters: int, rate: float, duration: float, receiver: str = "proc
     latency = kept(result.latency) * 1e3
     steps = kept(result.step_time) * 1e3
     return dict(characters=characters, rate_hz=rate, duration_s=duration, receiver=receiver, compile=compile,
-                published=int(len(result.latency)), samples=result.source_stats["samples"],
+                backlog=backlog, published=int(len(result.latency)), samples=result.source_stats["samples"],
                 skipped=sum(result.skipped.values()), missed_after_warm_up=_missed(result, warm_up),
                 lost=result.source_stats["lost"],
                 latency_ms=dict(p50=float(np.median(latency)), p99=float(np.quantile(latency, 0.99)),
@@ -116,6 +120,9 @@ def main() -> None:
                         help="receive in a process of its own (default, as torchik live) or in a thread")
     parser.add_argument("--compile", action="store_true", help="the tracker's step replayed compiled, as torchik "
                         "live --compile (captured at the third step: give --warm-up the seconds this takes)")
+    parser.add_argument("--backlog", type=int, metavar="N", help="samples queued per character, all tracked in "
+                        f"order, as torchik live --backlog (1: the newest; default: up to {BACKLOG}, caught up while "
+                        "the step takes at most half a frame)")
     parser.add_argument("--warm-up", type=float, default=WARM_UP_S, metavar="S",
                         help=f"seconds left out at the start (default {WARM_UP_S:g})")
     args = parser.parse_args()
@@ -125,7 +132,7 @@ def main() -> None:
     settings = SETTINGS if not args.only else [(int(n), float(hz)) for n, hz in (s.split("@") for s in args.only)]
     results = []
     for characters, rate in settings:
-        r = measure(characters, rate, args.duration, args.receiver, args.compile, args.warm_up)
+        r = measure(characters, rate, args.duration, args.receiver, args.compile, args.warm_up, args.backlog)
         results.append(r)
         lat, cpu = r["latency_ms"] or {}, r["cpu_s"]
         print(f"{characters:3d} character(s) at {rate:5.0f} Hz: latency p50 {lat.get('p50', float('nan')):6.2f} ms, "

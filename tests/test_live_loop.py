@@ -6,6 +6,7 @@ in a thread or in a process of its own; two characters are tracked as one batch.
 from __future__ import annotations
 
 import threading
+import time
 
 import pytest
 import torch
@@ -123,6 +124,32 @@ def test_frames_the_loop_steps_over_do_not_restart_a_character_from_the_zero_pos
     frames = torch.round(result.trajectories[0].time * 100.0)
     assert result.skipped[0] > 0 and float(frames.diff().max()) > 5  # steps over more than max_gap frames
     assert not result.trajectories[0].diagnostics["new_segment"].any()
+
+
+@pytest.mark.parametrize("backlog", [1, None], ids=["newest only", "default"])
+def test_a_burst_after_the_sender_stalled_is_tracked_frame_by_frame_as_track_does(model, backlog):
+    """A sender that loses its core for 0.1 s then sends the 5 frames it owes at once, as a suit's
+    software does after a stall. With the default backlog the loop, whose steps are far shorter
+    than a 50 Hz frame, tracks every one of them in order, each with its own dt (the estimates are
+    `track`'s on the same frames) and skips none; stepping to the newest (backlog 1) skips some."""
+    walk = scenario("walking", model, TRACKED_LINKS["human66"], duration=2.0, rate=50.0)
+    source = MvnSource(Url("udp", "127.0.0.1", 0))
+    stall = lambda k: time.sleep(0.1) if k == 40 else None  # noqa: E731
+    sender = threading.Thread(target=replay, args=(walk, Url("udp", "127.0.0.1", source.address[1])),
+                              kwargs=dict(lead_in_s=0.1, on_frame=stall))
+    sender.start()
+    options = LiveOptions(stop_when_idle_s=0.4) if backlog is None else LiveOptions(backlog=1, stop_when_idle_s=0.4)
+    result = track_live(source, model, lambda names: Selection.build(names, TRACKED_LINKS["human66"]), options=options)
+    sender.join()
+    assert result.source_stats["samples"] == len(walk.time)
+    if backlog == 1:
+        assert sum(result.skipped.values()) > 0  # the burst is there
+        return
+    offline, _ = track_recording(model, wire_recording(walk), TRACKED_LINKS["human66"])
+    live = result.trajectories[0]
+    assert sum(result.skipped.values()) == 0
+    torch.testing.assert_close(live.time, offline.time, rtol=0, atol=1e-12)
+    torch.testing.assert_close(live.joint_positions, offline.joint_positions, rtol=0, atol=1e-9)
 
 
 def test_what_the_set_up_made_is_out_of_the_garbage_collectors_reach_once_tracking(model):

@@ -48,7 +48,7 @@ def delivered_until(source: ReceiverProcess, mailbox: Mailbox, done, timeout: fl
 
 
 def test_while_the_tracker_does_not_take_only_the_newest_sample_waits_and_the_others_are_counted():
-    source = ReceiverProcess(Url("udp", "127.0.0.1", 0))
+    source = ReceiverProcess(Url("udp", "127.0.0.1", 0), backlog=1)
     frames, characters = 30, (0, 3)
     try:
         send(source.address, [d for k in range(frames) for c in characters for d in frame(k, c)])

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
+from ..live.sample import BACKLOG
 from ..method.limits import LimitSettings
 from ..method.models import MODELS
 from ..method.qp import BACKENDS
@@ -71,8 +72,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--out", metavar="NPZ", help="write the trajectory here when the session stops (character c > 0: "
                    "NAME.c.npz)")
     p.add_argument("--report", metavar="JSON", help="write the report (counters, errors, latency) here at the end")
-    p.add_argument("--backlog", type=int, default=1, metavar="N", help="samples queued per character before the "
-                   "oldest is stepped over (default 1: always the newest)")
+    p.add_argument("--backlog", type=int, metavar="N", help="frames per character that came at once tracked in "
+                   "order, each with its own dt; further behind, the newest (1: always the newest; default "
+                   f"{BACKLOG}, and the newest only while a step costs more than half a frame)")
     p.add_argument("--receiver", choices=("process", "thread"), default="process",
                    help="receive a udp:// stream in a process of its own (default: the tracker then never waits for "
                         "the receiver's Python) or in a thread of the tracker's")
@@ -132,7 +134,7 @@ def _check(args: argparse.Namespace) -> None:
     if args.rrd and Path(args.rrd).suffix != ".rrd":
         raise InputError(f"{args.rrd}: a rerun recording's name must end in .rrd")
     check_outputs([args.report, args.out, args.rrd], args.force)
-    if args.backlog < 1:
+    if args.backlog is not None and args.backlog < 1:
         raise InputError(f"--backlog {args.backlog}: at least 1")
     if args.rate is not None and not args.rate > 0:
         raise InputError(f"--rate {args.rate}: must be positive")

@@ -228,7 +228,7 @@ def encode_payloads(message_type: str, ids: np.ndarray, columns: dict[str, np.nd
     return [chunk.tobytes() for chunk in chunks]
 
 
-def framed(message_type: str, payloads: list[bytes], sample_counter: int, time_code: int, character: int,
+def framed(message_type: str, payloads: Sequence[bytes], sample_counter: int, time_code: int, character: int,
            body_segments: int = 23) -> list[bytes]:
     """Each payload of a frame's message behind its header: a replay encodes a recording's frame
     once (`encode_payloads`) and sends it as any character's frame."""

@@ -4,12 +4,14 @@ other's GIL (at 64 characters the receiver reads some 13,000 datagrams a second;
 the tracker's process it held the GIL for much of the step's time).
 
 The receiver (spawned) reads every datagram waiting on the socket as one batch, and keeps per
-character its newest `backlog` samples not yet handed on (an older one is stepped over and counted
-as skipped, as the live loop's `Mailbox` does). The tracker asks for samples with a credit: the
-receiver sends what it holds, all characters in one message of stacked arrays, when the tracker has
-a credit, and the tracker gives the next credit as it takes a message. So at most one message is in
-flight, and what waits while the tracker steps is only ever the newest. Each message carries the
-source's counters, and the last one, at the end, their final values and the receiver's CPU time.
+character its newest samples not yet handed on, as many as the tracker's last credit asked (at
+most `backlog`: all of them while the tracker catches up bursts, 1 while it steps to the newest);
+an older one is stepped over and counted as skipped, as the live loop's `Mailbox` does. The
+tracker asks for samples with a credit: the receiver sends what it holds, all characters in one
+message of stacked arrays, when the tracker has a credit, and the tracker gives the next credit as
+it takes a message. So at most one message is in flight, and what waits while the tracker steps
+is only ever the newest few. Each message carries the source's counters, and the last one, at the
+end, their final values and the receiver's CPU time.
 
 Ctrl-C is the tracker's: the receiver ignores SIGINT and ends when the tracker closes the source,
 or when the tracker's end of the pipe closes (the tracker died): no receiver outlives its tracker.
@@ -30,7 +32,7 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import InputError
-from .sample import Sample, SourceStats, Url, keep_newest
+from .sample import BACKLOG, Sample, SourceStats, Url, keep_newest
 
 PIPE_BYTES = 1 << 20  # a message of 64 characters' samples is some 150 kB: one fits without blocking
 STOP = "stop"
@@ -45,7 +47,7 @@ class ReceiverProcess:
     as the receiver last reported them; `skipped` (per character) the samples the receiver stepped
     over while the tracker was busy; `close()` ends the receiver and waits for it."""
 
-    def __init__(self, url: Url, rate: float | None = None, position_scale: float = 1.0, backlog: int = 1):
+    def __init__(self, url: Url, rate: float | None = None, position_scale: float = 1.0, backlog: int = BACKLOG):
         from .mvn_source import MvnSource
 
         if url.scheme != "udp":
@@ -75,7 +77,7 @@ class ReceiverProcess:
         the stream the mailbox is finished."""
         if self.finished or not self._messages.poll(timeout):
             return False
-        samples = self._take()
+        samples = self._take(mailbox.keep)
         if self.finished:
             mailbox.finish()
         for character, count in self._skipped_now.items():
@@ -84,8 +86,9 @@ class ReceiverProcess:
             mailbox.put(sample)
         return True
 
-    def _take(self) -> list[Sample]:
-        """The next message's samples (counters and rate taken over); the next credit given."""
+    def _take(self, keep: int | None = None) -> list[Sample]:
+        """The next message's samples (counters and rate taken over); the next credit given, with
+        how many samples per character the receiver is to keep until then (None: its backlog)."""
         try:
             kind, rate, stats, skipped, packed = self._messages.recv()
         except EOFError:  # the receiver died: what it had counted so far stays
@@ -97,7 +100,7 @@ class ReceiverProcess:
         if kind == "end":
             self.finished, self.serving_cpu_s, packed = True, packed, []
         else:
-            self._credits.send(None)
+            self._credits.send(keep)
         return unpack(packed)
 
     def __iter__(self) -> Iterator[Sample]:
@@ -141,7 +144,7 @@ def _serve(url: Url, rate: float | None, position_scale: float, backlog: int, bo
     source = MvnSource(url, rate, position_scale=position_scale, bound=bound)
     queues: dict[int, deque] = {}
     skipped: dict[int, int] = {}
-    credit, running = True, True
+    credit, running, keep = True, True, backlog
     poller = select.poll()  # made once: a selector per wait would cost more than a datagram's parsing
     for connection in (credits, source.socket):
         poller.register(connection.fileno(), select.POLLIN)
@@ -150,14 +153,15 @@ def _serve(url: Url, rate: float | None, position_scale: float, backlog: int, bo
             ready = {fd for fd, _ in poller.poll(1000)}
             if credits.fileno() in ready:
                 try:
-                    running = credits.recv() != STOP
-                    credit = True
+                    given = credits.recv()
+                    running, credit = given != STOP, True
+                    keep = min(given, backlog) if isinstance(given, int) else backlog
                 except EOFError:  # the tracker is gone
                     return
             if source.socket.fileno() in ready:
                 start = time.process_time() if start is None else start
                 for sample in source.receive(0.0):
-                    if keep_newest(queues, sample, backlog):
+                    if keep_newest(queues, sample, keep):
                         skipped[sample.character] = skipped.get(sample.character, 0) + 1
             if credit and any(queues.values()):
                 given = [s for queue in queues.values() for s in queue]

@@ -1,8 +1,9 @@
-"""The live loop: a receiver thread reads the source and leaves each complete sample in a
-`Mailbox`: per character at most `backlog` samples (default 1: the newest); an older one is stepped
-over and counted as skipped when a newer arrives, so the queue never grows. The tracking loop takes
-one sample per character per step (waiting up to `gather_s` for the characters of a frame to be all
-there), so neither blocks the other.
+"""The live loop: a receiver thread (or process) reads the source and leaves each complete sample in
+a `Mailbox`: per character at most `backlog` samples; an older one is stepped over and counted as
+skipped when a newer arrives, so the queue never grows. The tracking loop takes one sample per
+character per step (waiting up to `gather_s` for the characters of a frame to be all there), so
+neither blocks the other: the oldest queued while its steps are short enough to catch up a burst
+of frames, else the newest (`CatchUp`).
 
 A step's dt is the frame counter's difference over the stream's rate: lost frames give a longer
 step, as they would offline. A character without a sample in a step has its targets dropped for it
@@ -18,80 +19,36 @@ import dataclasses
 import gc
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from ...live.sample import Sample, Source, keep_newest
+from ...live.sample import Sample, Source
 from ...method.kinematics import KinematicModel
 from ...method.settings import TrackerSettings
 from ...method.tracker import DynamicalIK
 from .batch import BatchTracker, LiveRetarget, rows_from
 from .collect import IdleCollector
 from .history import History, LiveResult, milliseconds
+from .mailbox import BACKLOG, CatchUp, Mailbox
 from .publish import Publisher
 from .targets import Selection, sample_targets
 from .viewer import LiveViewer
 
 
-class Mailbox:
-    """Complete samples from the receiver thread to the tracking loop: per character a deque of at
-    most `backlog`; putting into a full one steps over its oldest sample (counted in `skipped`)."""
-
-    def __init__(self, backlog: int = 1):
-        self.backlog = backlog
-        self.queues: dict[int, deque] = {}
-        self.skipped: dict[int, int] = {}
-        self.last_put: dict[int, float] = {}  # per character, when its newest sample came in
-        self.unstepped: dict[int, int] = {}  # per character, samples stepped over since its last take
-        self.last_skips: dict[int, int] = {}  # of the characters the last take gave, those samples
-        self.condition = threading.Condition()
-        self.finished = False  # the source ended
-
-    def put(self, sample: Sample) -> None:
-        with self.condition:
-            if keep_newest(self.queues, sample, self.backlog):
-                self.count_skipped(sample.character, 1)
-            self.last_put[sample.character] = time.perf_counter()
-            self.condition.notify()
-
-    def count_skipped(self, character: int, count: int) -> None:
-        """`count` samples of the character stepped over before they reached the mailbox (or in it)."""
-        self.skipped[character] = self.skipped.get(character, 0) + count
-        self.unstepped[character] = self.unstepped.get(character, 0) + count
-
-    def finish(self) -> None:
-        with self.condition:
-            self.finished = True
-            self.condition.notify()
-
-    def take(self, active, timeout: float, gather: float) -> dict[int, Sample]:
-        """The oldest queued sample of each character that has one: waits up to `timeout` for the
-        first, then up to `gather` for every `active` character to have one."""
-        with self.condition:
-            self.condition.wait_for(lambda: self.finished or any(self.queues.values()), timeout)
-            deadline = time.perf_counter() + gather
-            while not self.finished and not all(self.queues.get(c) for c in active):
-                remaining = deadline - time.perf_counter()
-                if remaining <= 0 or not self.condition.wait(remaining):
-                    break
-            got = {c: q.popleft() for c, q in self.queues.items() if q}
-            self.last_skips = {c: self.unstepped.pop(c, 0) for c in got}
-            return got
-
-
 @dataclass
 class LiveOptions:
-    """backlog: samples queued per character (1: always the newest); stall_s: silence after which a
-    character leaves the batch and the source is reported stalled; gather_s: how long a step waits
-    for the rest of a frame's characters (None: half a frame); duration_s: stop after this
-    long; stop_when_idle_s: stop once the source has been silent this long (replays, tests); None:
+    """backlog: samples per character tracked in order when they come at once; beyond, the loop steps
+    to the newest (1: always the newest); None: `BACKLOG`, and the newest only while the loop's
+    cost of a sample is over half a frame (`CatchUp`). stall_s: silence after which a character
+    leaves the batch and the source is reported stalled; gather_s: how long a step waits for the
+    rest of a frame's characters (None: half a frame); duration_s: stop after this long;
+    stop_when_idle_s: stop once the source has been silent this long (replays, tests); None:
     run until Ctrl-C. keep_states: keep every step's states for the trajectories (`--out`); without,
     only what the report needs."""
 
-    backlog: int = 1
+    backlog: int | None = None
     stall_s: float = 1.0
     gather_s: float | None = None
     duration_s: float | None = None
@@ -119,7 +76,7 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
     second; viewer: a LiveViewer; retarget: a LiveRetarget (the publisher then carries the robot's
     joints)."""
     options = options or LiveOptions()
-    mailbox = Mailbox(options.backlog)
+    mailbox = Mailbox(options.backlog or BACKLOG)
     # a source that receives in a process of its own is polled from this thread: no second thread
     # of this process then competes with the step for the GIL
     deliver = getattr(source, "deliver", None)
@@ -132,15 +89,17 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
     start = last_progress = last_check = time.perf_counter()
     interrupted = False
     collector = IdleCollector().start()  # garbage collected between samples, not in a step
+    catch_up = CatchUp(options.backlog)
     try:
         while True:
             # a source knows its rate before it yields its first sample (MVN estimates it from the
             # first time codes, LSL reads the stream's nominal rate)
-            gather = options.gather_s if options.gather_s is not None else 0.5 / (source.rate or 100.0)
+            rate = source.rate or 100.0
+            gather = options.gather_s if options.gather_s is not None else 0.5 / rate
             if deliver is None:
-                got = mailbox.take(loop.active, timeout=0.05, gather=gather)
+                got = mailbox.take(loop.active, timeout=0.05, gather=gather, keep=catch_up.keep(rate))
             else:
-                got = _take_delivered(deliver, mailbox, loop.active, timeout=0.05, gather=gather)
+                got = _take_delivered(deliver, mailbox, loop.active, 0.05, gather, catch_up.keep(rate))
             now = time.perf_counter()
             if got:
                 assert source.rate is not None
@@ -148,6 +107,8 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
             elif mailbox.finished:
                 break
             collector.collect()  # after the step's push: the next sample is the furthest off
+            if got:
+                catch_up.record(got, now, time.perf_counter())
             if now - last_check >= min(0.05, options.stall_s / 4):  # not every step: a look at every character
                 last_check = now
                 loop.check_stalls(now, options.stall_s, mailbox)
@@ -179,7 +140,7 @@ def _receive(source: Source, mailbox: Mailbox) -> None:
         mailbox.finish()
 
 
-def _take_delivered(deliver, mailbox: Mailbox, active, timeout: float, gather: float) -> dict[int, Sample]:
+def _take_delivered(deliver, mailbox: Mailbox, active, timeout: float, gather: float, keep: int) -> dict[int, Sample]:
     """`Mailbox.take` for a source that delivers into the mailbox when asked (`ReceiverProcess`):
     what has come is taken in first, then it waits as `take` does."""
     deliver(mailbox, 0.0 if any(mailbox.queues.values()) else timeout)
@@ -189,7 +150,7 @@ def _take_delivered(deliver, mailbox: Mailbox, active, timeout: float, gather: f
             remaining = deadline - time.perf_counter()
             if remaining <= 0 or not deliver(mailbox, remaining):
                 break
-    return mailbox.take(active, timeout=0.0, gather=0.0)
+    return mailbox.take(active, timeout=0.0, gather=0.0, keep=keep)
 
 
 def _counters(source: Source, mailbox: Mailbox, loop: "_Loop") -> dict:
