@@ -113,7 +113,7 @@ class Analysis:
     joint_axes: torch.Tensor
     trajectory: Trajectory = field(repr=False)
     poses: tuple[str | None, ...] = ()  # per subject: the reference pose a map calibrated it on (reference_pose)
-    _projector: tuple | None = field(default=None, init=False, repr=False, compare=False)  # (b, M): projector(b)
+    _projector: tuple | None = field(default=None, init=False, repr=False, compare=False)  # (b, {at_limits: M})
 
     @property
     def batch(self) -> int:
@@ -133,15 +133,26 @@ class Analysis:
         r = torch.cat((self.r_p[k, b], self.r[k, b].flatten(-2)), dim=-1)
         return torch.where(self.rows[:, b], r, 0.0)
 
-    def projector(self, b: int) -> torch.Tensor:
+    def projector(self, b: int, at_limits: bool = False) -> torch.Tensor:
         """M = I - J A J^T of subject b [S,R,R], zero on the rows of missing targets (M X is
         project(b, X)): the candidates' G are a few columns each, and M G a few of M's columns.
-        Kept for the last subject asked, whose candidates are fitted one after the other."""
+        at_limits: J without the columns of the joints at a limit at each sample (active): the tracker
+        cannot move such a joint further, so an inconsistency that pushes it there (a sensor turned
+        about the joint's axis until the joint reaches its limit) leaves its residual, which a free
+        joint would seem to follow. Kept for the last subject asked, whose candidates are fitted one
+        after the other."""
         if self._projector is None or self._projector[0] != b:
+            self._projector = (b, {})
+        cache = self._projector[1]
+        if at_limits not in cache:
             J, A = self.J[:, b], self.A[:, b]
+            if at_limits:
+                free = torch.cat((torch.ones(len(self.sample), 6, dtype=torch.bool), ~self.active[self.sample, b]), -1)
+                J = J * free[:, None, :].to(J.dtype)  # [S,R,6+n]
+                A = inverse_normal(J)
             M = torch.eye(J.shape[-2], dtype=J.dtype) - J @ (A @ J.transpose(-1, -2))
-            self._projector = (b, M * self.rows[:, b, :, None].to(J.dtype))
-        return self._projector[1]
+            cache[at_limits] = M * self.rows[:, b, :, None].to(J.dtype)
+        return cache[at_limits]
 
     def project(self, b: int, X: torch.Tensor, J: torch.Tensor | None = None, A: torch.Tensor | None = None) -> torch.Tensor:
         """M X = X - J A J^T X for subject b, X [...,S,R,k] (rows as J's) -> the same, zero on the

@@ -168,6 +168,28 @@ def _area(s: Subject, effect: Effect) -> tuple[set[str], set[str]]:
     return elimination.reach(effect, model, links), elimination.neighbourhood(effect, model, urdf, links)
 
 
+def _simplest_first(s: Subject, passing: list[Effect]) -> list[Effect]:
+    """`passing` (best first) with the best replaced by the simplest of its rivals: candidates of its
+    kind on related links (elimination.related: they explain the same residual) that score within TIE
+    of it with fewer parameters identified, the fewest first. Where the joints share a rotation
+    between several links (a spine whose joints have no axis along it), one sensor's offset shows on
+    its neighbours too, and a neighbour's fit that adds directions the joints nearly follow picks up
+    the rest of the residual with them: it scores about as well, with values no strap allows."""
+    if not passing:
+        return passing
+    best = passing[0]
+    near = _area(s, best)[1]
+    rivals = [c for c in passing[1:] if c.kind == best.kind and c.n_params < best.n_params
+              and c.score >= TIE * best.score and _area(s, c)[0] & near]
+    if not rivals:
+        return passing
+    simplest = min(rivals, key=lambda c: (c.n_params, -c.score))
+    simplest.notes = "; ".join(filter(None, [simplest.notes, f"preferred to {best.kind} at {best.target} (score "
+                                             f"{best.score:.0f} with {best.n_params} parameters against "
+                                             f"{simplest.score:.0f} with {simplest.n_params})"]))
+    return [simplest] + [c for c in passing if c is not simplest]
+
+
 def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> list[Effect]:
     """The significant candidates of subject s that explain disjoint residuals, refitted on all the
     data, best first (empty when none is): the best plausible one, then, in the order of their
@@ -190,6 +212,7 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
             passing.append(c)
         elif c.score > threshold:
             c.notes = "; ".join(filter(None, [c.notes, f"not significant: {why}"]))
+    passing = _simplest_first(s, passing)
     chosen: list[tuple[Effect, Effect]] = []  # (the candidate, its refit)
     areas: list[tuple[set[str], set[str]]] = []
     for c in passing:
@@ -248,6 +271,16 @@ def _variants(s: Subject, chosen: list[Effect]) -> list[elimination.Variant]:
     return list(out.values())
 
 
+def _refined_to_nothing(effect: Effect) -> str:
+    """Why a measurement effect, refined, is no effect any more ("" when it still is): every parameter
+    within its standard error of zero. Fitted first on a residual that another effect of the round or
+    the tracker's share of it explained, the Gauss-Newton steps took it back to nothing; kept, it would
+    be a finding of size zero. Model effects are not tested: their standard errors are of other values."""
+    if effect.model_effect or not effect.stderr or not effect.negligible():
+        return ""
+    return "refined, every parameter is within its standard error of zero: nothing is left for it to explain"
+
+
 def _check(added: list[Added], links, gain: float, progress: bool, max_samples: int, round_: int,
            say: Callable[[str], None]) -> set[int]:
     """Keep each effect of the round whose error (Effect.error, over the links the round's other
@@ -267,7 +300,7 @@ def _check(added: list[Added], links, gain: float, progress: bool, max_samples: 
             old, new = (_error_apart(e, effect.error, others) for e in (before, after))
             rose = new > old * (1 + WORSE)
             why = (f"re-tracked with it, the {effect.error} went from {old:.4g} to {new:.4g}" if rose
-                   else effect.implausible())  # refined, it may have gone where it cannot be
+                   else effect.implausible() or _refined_to_nothing(effect))  # refined, it may have gone where it cannot be
             if not why:
                 kept.append(effect)
                 s.steps.append(Step(effect, before, after))

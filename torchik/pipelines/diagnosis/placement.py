@@ -13,6 +13,12 @@ theta the effect's parameters is fitted by least squares against M:
 
 Directions the joints can follow leave no residual (G^T M G is singular there): a misalignment
 about a link's own joint axes is a joint offset to the data, and is reported as not identified.
+Unless it carries the joint to its limit: there the joint cannot follow it further, and the residual
+it leaves is the part beyond the limit, which a joint limit would otherwise take (explaining the
+residual only while the joint is there). A misalignment is fitted both ways, M with the joints free
+and M without the joints next to its link where they are at a limit (project_held), and keeps the better
+calibrated score: the joint holds at its limit against the sensor's turn, or moves off it with the
+turn the other way.
 """
 
 from __future__ import annotations
@@ -25,8 +31,8 @@ import numpy as np
 import torch
 
 from ...method import so3
-from .analysis import Analysis
-from .effect import Effect, Score, combine, lowpass_blocks, replace, rotation_about, score, shift
+from .analysis import Analysis, inverse_normal
+from .effect import SIGNIFICANT, Effect, Score, combine, lowpass_blocks, replace, rotation_about, score, shift
 from .integral import agreement
 
 MAX_DELAY = 0.25  # s: a sensor later than this on the others is no delay but a different recording
@@ -44,6 +50,42 @@ def project_blocks(analysis: Analysis, b: int, links: list[int], blocks: torch.T
     if list(links) != list(range(columns.shape[1])):
         columns = columns[:, links]
     return (columns @ blocks.transpose(0, 1)).transpose(0, 1)  # [S,N,R,3] @ [S,N,3,k] -> [N,S,R,k]
+
+
+def adjacent_joints(analysis: Analysis) -> torch.Tensor:
+    """[L,n] the joints next to each tracked link: those between it and its nearest tracked ancestor
+    (all above it for the root) and those between it and the tracked links whose nearest it is."""
+    above = analysis.model.select(analysis.links).ancestor_mask.bool()  # [L,n]
+    count = above.sum(-1)  # [L]
+    inside = (above[None, :, :] <= above[:, None, :]).all(-1) & (count[None, :] < count[:, None])  # [L,L]: p above l
+    has = inside.any(-1)
+    parent = torch.where(inside, count[None, :], -1).argmax(-1)  # the deepest link above each
+    own = above & ~(above[parent] & has[:, None])
+    child = torch.nn.functional.one_hot(parent, len(count)).T.bool() & has[None, :]  # [L,L]: c's parent is l
+    return own | (child.to(torch.float64) @ own.to(torch.float64) > 0)
+
+
+def project_held(analysis: Analysis, b: int, links: list[int], blocks: torch.Tensor) -> torch.Tensor:
+    """project_blocks with M, for candidate n, built without the joints next to links[n]
+    (adjacent_joints) at the samples where they are at a limit (analysis.active): the tracker cannot
+    move them further, so a sensor turned until the joints that follow it (its own, or those of the
+    links below that keep them where their sensors say) reach a limit leaves its residual there,
+    which the free joint would seem to follow -> [N,S,R,k]."""
+    k = analysis.sample
+    out = project_blocks(analysis, b, links, blocks).clone()
+    held = analysis.active[k, b][None] & adjacent_joints(analysis)[links][:, None]  # [N,S,n]
+    pick = torch.nonzero(held.flatten(1).any(-1))[:, 0]
+    if not len(pick):
+        return out
+    free = torch.cat((torch.ones(len(pick), len(k), 6, dtype=torch.bool), ~held[pick]), -1)  # [H,S,6+n]
+    J = analysis.J[:, b][None] * free[:, :, None, :].to(analysis.J.dtype)  # [H,S,R,6+n]
+    rows = torch.stack([torch.arange(3) + 3 + 3 * links[n] for n in pick.tolist()])  # [H,3]: each link's rows
+    J_own = torch.gather(J, 2, rows[:, None, :, None].expand(-1, len(k), -1, J.shape[-1]))  # [H,S,3,6+n]
+    columns = -(J @ (inverse_normal(J) @ J_own.transpose(-1, -2)))  # [H,S,R,3]: M's columns of the link's rows
+    columns.scatter_add_(2, rows[:, None, :, None].expand(-1, len(k), -1, 3),
+                         torch.eye(3, dtype=J.dtype).expand(len(pick), len(k), 3, 3))
+    out[pick] = (columns * analysis.rows[:, b, :, None].to(J.dtype)) @ blocks[pick]
+    return out
 
 
 @dataclass
@@ -106,6 +148,18 @@ def fit_projected(analysis: Analysis, b: int, MG: torch.Tensor, GG: torch.Tensor
     return out
 
 
+def _held_or_free(free: LinearFit, held: LinearFit) -> LinearFit:
+    """The misalignment fit of the better calibrated score, with M's joints free or held at their limits
+    (module docstring). Held, the part about a joint's axis is the least turn that keeps the joint
+    within its limit, not the sensor's whole turn about it (the residual beyond the limit is what
+    shows): the directions the data determine stay those of the free fit, where it has any. Only a
+    turn the free fit already finds significant is completed so: one that shows only while a joint is
+    at its limit is, to the data, just as well that limit set narrower than the motion."""
+    if held.fit.calibrated <= free.fit.calibrated or free.fit.calibrated <= SIGNIFICANT:
+        return free  # seen only at the limits, a turn is as much a limit narrower than the motion
+    return held if not free.identified.shape[1] else LinearFit(held.theta, held.cov, free.identified, held.fit)
+
+
 UNOBSERVABLE = "not identifiable: the joints follow every direction of it, so it leaves no residual"
 
 
@@ -116,8 +170,9 @@ def _unidentified(lf: LinearFit, k: int) -> str:
         return ""
     free = torch.linalg.svd(torch.eye(k, dtype=lf.identified.dtype) - lf.identified @ lf.identified.T)[0][:, :k - m]
     about = " and ".join("(" + ", ".join(f"{x:+.2f}" for x in v) + ")" for v in free.T.tolist())
-    return (f"not identified about {about} in the link frame (the joints follow it; that part is set to zero "
-            f"and its standard error means nothing)")
+    return (f"not identified about {about} in the link frame (the joints follow it; that part is set to zero, or "
+            f"where a joint is held at its limit to the least turn that keeps it within, and its standard error "
+            f"means nothing)")
 
 
 @dataclass
@@ -230,7 +285,8 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
     tr, te = (ok[:, usable] & train[:, None]).T, (ok[:, usable] & test[:, None]).T  # [N,T]
     R_hat = analysis.R_hat[k, b][:, usable].transpose(0, 1)  # [N,S,3,3]
     w_hat = analysis.w_hat[k, b][:, usable].transpose(0, 1)  # [N,S,3]
-    misalignments = fit_linear(analysis, b, usable, R_hat, tr, te)
+    misalignments = [_held_or_free(*fits) for fits in zip(fit_linear(analysis, b, usable, R_hat, tr, te), fit_projected(
+        analysis, b, project_held(analysis, b, usable, R_hat), R_hat.transpose(-1, -2) @ R_hat, tr, te))]
     delays = fit_linear(analysis, b, usable, -w_hat[..., None], tr, te)
     drifts = _drift(analysis, b, usable, tr, te, derived, train, test)
     out: list[Effect] = []

@@ -28,7 +28,7 @@ import torch
 from ...io.maps import reference_configuration
 from ...method import so3
 from ...method.kinematics import KinematicModel
-from .analysis import Analysis, inverse_normal
+from .analysis import Analysis
 from .effect import Effect, replace
 from .joints import JointLimit, joint_groups
 from .placement import UNOBSERVABLE, fit_projected
@@ -106,15 +106,10 @@ def held_by_reference(effect: Effect, model: KinematicModel, pose: str | None) -
 
 
 def project_at_limits(analysis: Analysis, b: int, G: torch.Tensor) -> torch.Tensor:
-    """M G for G [L,S,3,k] on each link's orientation rows -> [L,S,R,k], M from the task Jacobian
-    without the joints at a limit at each sample (analysis.active): a posture that pushes a joint
-    against its limit (an N-pose holds the shoulders at theirs) leaves its residual there, which
-    the joint, free in the analysis' M, would seem to follow."""
-    k = analysis.sample
-    free = torch.cat((torch.ones(len(k), 6, dtype=torch.bool), ~analysis.active[k, b]), dim=-1)  # [S,6+n]
-    J = analysis.J[:, b] * free[:, None, :].to(analysis.J.dtype)
-    M = (torch.eye(J.shape[-2], dtype=J.dtype) - J @ (inverse_normal(J) @ J.transpose(-1, -2))) \
-        * analysis.rows[:, b, :, None].to(J.dtype)
+    """M G for G [L,S,3,k] on each link's orientation rows -> [L,S,R,k], M the analysis' projector,
+    without the joints at a limit at each sample: a posture that pushes a joint against its limit (an
+    N-pose holds the shoulders at theirs) leaves its residual there."""
+    M = analysis.projector(b, at_limits=True)
     columns = M[:, :, 3:].unflatten(-1, (-1, 3)).permute(0, 2, 1, 3)  # [S,L,R,3]: M's columns of each link's rows
     return (columns @ G.transpose(0, 1)).transpose(0, 1)
 

@@ -1,0 +1,58 @@
+"""The placement family's misalignment against joints held at their limits (torchik/pipelines/diagnosis/placement.py).
+
+Recording: a Human48 walk (5 s at 50 Hz, the scenarios' sensor noise) whose left shank sensor is
+turned 35 deg about the knee's z axis, so that the knee the tracker estimates is carried past its
+limit for part of the time (Misalignment.inject: R_m = R C).
+
+Properties:
+- adjacent_joints gives each link the joints between it and its nearest tracked ancestor and those
+  between it and the tracked links below it (none above the base);
+- a rotation of the shank's sensor about the knee's axis is followed by the joints wherever the
+  knee and the ankle are free (project_blocks, and project_held there), and leaves a residual exactly at the
+  samples where the knee is at its limit (project_held), as the tracker, which cannot move it
+  further, leaves it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from torchik.method.models import TRACKED_LINKS, load_model
+from torchik.pipelines.diagnosis.analysis import analyse
+from torchik.pipelines.diagnosis.placement import Misalignment, adjacent_joints, project_blocks, project_held
+from torchik.synthetic.scenarios import scenario
+
+LINKS = TRACKED_LINKS["human48"]
+SHANK, KNEE = "LeftLowerLeg", "jLeftKnee_rotz"
+
+
+@pytest.fixture(scope="module")
+def pushed(one_thread):
+    """The analysis of the walk with the shank's sensor turned about the knee's axis."""
+    model = load_model("human48")
+    walk = scenario("walking", model, LINKS, 5.0, 50.0, seed=3)
+    turned = Misalignment("misalignment", SHANK, dict(rotation_vector=[0.0, 0.0, -math.radians(35.0)]))
+    return analyse(model, [turned.inject(walk)], LINKS)
+
+
+def test_the_joints_next_to_a_link_are_those_up_to_its_tracked_neighbours(pushed):
+    near = adjacent_joints(pushed)
+    names = pushed.model.joint_names
+    assert [names[j] for j in near[LINKS.index(SHANK)].nonzero()[:, 0].tolist()] == [
+        "jLeftKnee_roty", KNEE, "jLeftAnkle_rotx", "jLeftAnkle_roty", "jLeftAnkle_rotz"]
+    assert [names[j] for j in near[LINKS.index("LeftToe")].nonzero()[:, 0].tolist()] == ["jLeftBallFoot_roty"]
+
+
+def test_a_turn_about_a_joint_at_its_limit_leaves_its_residual(pushed):
+    j, i = pushed.model.joint_names.index(KNEE), LINKS.index(SHANK)
+    ankle = [pushed.model.joint_names.index(f"jLeftAnkle_rot{a}") for a in "xyz"]
+    at = pushed.active[pushed.sample, 0, j]
+    assert bool(at.any()) and not bool(at.all())
+    at = at | pushed.active[pushed.sample, 0][:, ankle].any(-1)
+    G = pushed.joint_axes[:, 0, j][None, :, :, None]  # [1,S,3,1]: a turn about the knee's axis on the shank's rows
+    free = project_blocks(pushed, 0, [i], G)[0].norm(dim=(-2, -1))
+    held = project_held(pushed, 0, [i], G)[0].norm(dim=(-2, -1))
+    assert bool((free <= 1e-6).all()) and bool((held[~at] <= 1e-6).all())
+    assert bool((held[at] >= 0.1).all())  # of a unit turn
