@@ -24,6 +24,7 @@ turn the other way.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -32,7 +33,7 @@ import torch
 
 from ...method import so3
 from .analysis import Analysis, inverse_normal
-from .effect import SIGNIFICANT, Effect, Score, combine, lowpass_blocks, replace, rotation_about, score, shift
+from .effect import ABOVE_NOISE, SIGNIFICANT, Effect, Score, combine, lowpass_blocks, replace, rotation_about, score, shift
 from .integral import agreement
 
 MAX_DELAY = 0.25  # s: a sensor later than this on the others is no delay but a different recording
@@ -264,6 +265,23 @@ class HeadingDrift(Effect):
         return (f"a drift of {rate:.3g} deg/s, beyond the {MAX_DRIFT:g} deg/s of an inertial sensor: a sign of a "
                 f"segment's offset changing (skin, a slipping strap) or of a mislabelled marker" if rate > MAX_DRIFT else "")
 
+    def angle_rms(self) -> float:
+        """The rms (rad) of the turn it makes over the recording, rate (t - t0) from t0 to t1."""
+        return abs(self.params["rate"]) * (self.params.get("t1", math.inf) - self.params["t0"]) / math.sqrt(3.0)
+
+    def significant(self, threshold: float, noise_rms: float) -> str:
+        """Effect.significant, and a turn larger than the noise (ABOVE_NOISE times its rms) or shown by
+        the sensor's own gyro: a drift of a tenth of a degree a second beside a true drift of its
+        neighbour (the common part of a chain's headings, which only the gyros see) turns its sensor
+        by about a degree over a recording, which the orientations cannot tell from their noise."""
+        why = super().significant(threshold, noise_rms)
+        own = self.params.get("own_gyro_score", 0.0)
+        if why or self.angle_rms() > ABOVE_NOISE * noise_rms or own > threshold:
+            return why
+        return (f"the turn it makes, {math.degrees(self.angle_rms()):.2f} deg rms over the recording, is within "
+                f"{ABOVE_NOISE:g} times the noise's {math.degrees(noise_rms):.2f} deg, and its own gyro does not "
+                f"show it (score {own:.1f})")
+
     def summary(self):
         return f"heading of the {self.target} sensor drifting by {np.degrees(self.params['rate']):+.3f} deg/s"
 
@@ -307,7 +325,7 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
         if not head.identified.shape[1]:
             out.append(HeadingDrift("heading_drift", name, notes=UNOBSERVABLE))
         else:
-            params, fit_d = dict(rate=float(head.theta[0]), t0=t0), head.fit
+            params, fit_d = dict(rate=float(head.theta[0]), t0=t0, t1=float(time[-1])), head.fit
             if not bool(derived[i]):
                 # a drifting heading turns the link's gyro with it (e_z = -rate): what its integral says,
                 # for or against, joins the score. The low-passed e_z of the fit barely tells a drift of
