@@ -8,7 +8,9 @@ the neighbour's opposite effect explains as well. What tells them apart is physi
 - a drifting heading turns the sensor's own gyro with it, and its orientations: a drift of the
   RightUpperArm sensor (whose turn the shoulder's ball joint takes up) is named as that, not as a
   gyro bias of the arm or a drift of a neighbour (placement.fit: the gyro's integral in the drift's
-  score; gyro._bias: a constant turn about the vertical is a drift, not a bias).
+  score; gyro._bias: a constant turn about the vertical is a drift, not a bias);
+- a drift whose turn over the recording stays within the noise is kept only where its own gyro
+  shows it (HeadingDrift.significant): the common part of a chain's headings is not a finding.
 
 Recordings: Human48 walking, 8 s at 50 Hz, the scenarios' sensor noise; the effect injected with
 Effect.inject.
@@ -21,6 +23,7 @@ import math
 import pytest
 
 from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
+from torchik.pipelines.diagnosis.effect import SIGNIFICANT, Score
 from torchik.pipelines.diagnosis.loop import diagnose
 from torchik.pipelines.diagnosis.placement import HeadingDrift, SensorDelay
 from torchik.synthetic.scenarios import scenario
@@ -51,3 +54,19 @@ def test_a_late_sensor_is_named_on_itself_not_on_its_neighbour_early(walk):
 def test_a_heading_drift_is_named_on_the_sensor_whose_gyro_turns(walk):
     d = _kept(walk, HeadingDrift("heading_drift", "RightUpperArm", dict(rate=math.radians(1.5), t0=0.0)))
     assert {(e.kind, e.target) for e in d.effects} == {("heading_drift", "RightUpperArm")}, d.effects
+
+
+def test_a_drift_whose_turn_is_within_the_noise_is_kept_only_on_its_gyros_word():
+    """HeadingDrift.significant: with a held-out score well above the threshold, a drift whose turn
+    over 12 s stays within 3 times the noise (0.15 deg/s, 1 deg noise) is not kept unless its own
+    gyro shows it; a drift of 0.6 deg/s is."""
+    noise = math.radians(1.0)
+    fit = Score(50.0, 0.5, 1.0, 1.0, 600, chunks=(6.0,) * 8, predicted=(6.0,) * 8)  # a steady gain: calibrated 50
+
+    def drift(deg_per_s, own):
+        return HeadingDrift("heading_drift", "L5", dict(rate=math.radians(deg_per_s), t0=0.0, t1=12.0,
+                                                        own_gyro_score=own), fit=fit, n_params=1)
+
+    assert "within 3 times the noise" in drift(0.15, 2.0).significant(SIGNIFICANT, noise)
+    assert drift(0.15, 40.0).significant(SIGNIFICANT, noise) == ""
+    assert drift(0.6, 2.0).significant(SIGNIFICANT, noise) == ""
