@@ -67,17 +67,6 @@ class Score:
         return gain / max(self.dispersion, 1.0) - (gain - self.score)
 
 
-def folds(*scores: Score, k: float) -> Score:
-    """One score from the folds of a cross-validation (each fold's score computed with k = 0, on its
-    own test time): their gains summed, the k parameters counted once, the stretches of all folds
-    side by side (they are different time)."""
-    n_eff = sum(s.n / s.tau for s in scores)
-    return Score(sum(s.score for s in scores) - k * math.log(max(n_eff, 2.0)),
-                 sum(s.explained for s in scores) / len(scores), scores[0].sigma2, scores[0].tau,
-                 sum(s.n for s in scores), tuple(c for s in scores for c in s.chunks),
-                 tuple(c for s in scores for c in s.predicted))
-
-
 CHUNKS = 8  # stretches of the test time on which the explained part is compared
 ABOVE_NOISE = 3.0  # an effect fitted sample by sample must move its angle this many times the noise's rms
 

@@ -47,6 +47,7 @@ class CatchUp:
         self.last_end = ended
 
     def keep(self, rate: float) -> int:
+        """Samples per character to track in order at a stream of `rate` Hz (see the class)."""
         if not self.adaptive or len(self.recent) < EVIDENCE or float(np.median(self.recent)) <= 0.5 / rate:
             return self.backlog
         return 1
