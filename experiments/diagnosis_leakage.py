@@ -26,9 +26,10 @@ KINDS = ("gyro_bias", "gyro_scale", "stream_delay", "heading_drift", "position_o
 
 
 def scores(analysis, urdf: str, whole: bool, guard: float | None) -> list[float]:
-    from torchik.pipelines.diagnosis import gyro, loop, placement, position
-    from torchik.pipelines.diagnosis.analysis import lowpass
+    from torchik.pipelines.diagnosis import gyro, placement, position
+    from torchik.pipelines.diagnosis.candidates import candidates
     from torchik.pipelines.diagnosis.effect import halves, lowpass_blocks
+    from torchik.pipelines.diagnosis.series import lowpass
 
     filtered = (lambda x, time, cutoff, train, test: lowpass(x, time, cutoff)) if whole else lowpass_blocks
     for module in (gyro, placement, position):
@@ -37,7 +38,7 @@ def scores(analysis, urdf: str, whole: bool, guard: float | None) -> list[float]
         out = []
         for b in range(analysis.batch):
             train, test = halves(analysis.time, guard=guard)
-            out += [c.score for c in loop.candidates(analysis, b, train, test, urdf, KINDS) if c.fit is not None]
+            out += [c.score for c in candidates(analysis, b, train, test, urdf, KINDS) if c.fit is not None]
         return out
     finally:
         for module in (gyro, placement, position):

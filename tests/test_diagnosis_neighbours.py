@@ -10,7 +10,9 @@ the neighbour's opposite effect explains as well. What tells them apart is physi
   gyro bias of the arm or a drift of a neighbour (placement.fit: the gyro's integral in the drift's
   score; gyro._bias: a constant turn about the vertical is a drift, not a bias);
 - a drift whose turn over the recording stays within the noise is kept only where its own gyro
-  shows it (HeadingDrift.significant): the common part of a chain's headings is not a finding.
+  shows it (HeadingDrift.significant): the common part of a chain's headings is not a finding;
+  nor is a misalignment within one sample's noise beside a kept effect (elimination.hanger_on),
+  what that effect, corrected a few per cent off, leaves on the links next to it.
 
 Recordings: Human48 walking, 8 s at 50 Hz, the scenarios' sensor noise; the effect injected with
 Effect.inject.
@@ -24,8 +26,9 @@ import pytest
 
 from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.diagnosis.effect import SIGNIFICANT, Score
+from torchik.pipelines.diagnosis.elimination import hanger_on
 from torchik.pipelines.diagnosis.loop import diagnose
-from torchik.pipelines.diagnosis.placement import HeadingDrift, SensorDelay
+from torchik.pipelines.diagnosis.placement import HeadingDrift, Misalignment, SensorDelay
 from torchik.synthetic.scenarios import scenario
 
 LINKS = TRACKED_LINKS["human48"]
@@ -70,3 +73,20 @@ def test_a_drift_whose_turn_is_within_the_noise_is_kept_only_on_its_gyros_word()
     assert "within 3 times the noise" in drift(0.15, 2.0).significant(SIGNIFICANT, noise)
     assert drift(0.15, 40.0).significant(SIGNIFICANT, noise) == ""
     assert drift(0.6, 2.0).significant(SIGNIFICANT, noise) == ""
+
+
+def test_a_misalignment_within_one_samples_noise_beside_a_kept_effect_is_its_hanger_on():
+    """elimination.hanger_on: under 0.8 deg of noise, a hand sensor turned by 1.2 deg beside a kept
+    drift of the forearm's is what the drift leaves; turned by 2.3 deg, or with nothing kept beside
+    it (the foot's, or before the drift is kept), it is a candidate like any other."""
+    model, urdf, noise = load_model("human48"), human_urdf(48), math.radians(0.8)
+    drift = HeadingDrift("heading_drift", "LeftForeArm", dict(rate=math.radians(-2.8), t0=0.0))
+
+    def turned(link, deg):
+        return Misalignment("misalignment", link, dict(rotation_vector=[0.0, math.radians(deg), 0.0]))
+
+    assert "beside the kept heading_drift at LeftForeArm" in hanger_on(turned("LeftHand", 1.2), [drift], model, urdf,
+                                                                       LINKS, noise)
+    assert hanger_on(turned("LeftHand", 2.3), [drift], model, urdf, LINKS, noise) == ""
+    assert hanger_on(turned("RightFoot", 1.2), [drift], model, urdf, LINKS, noise) == ""
+    assert hanger_on(turned("LeftHand", 1.2), [], model, urdf, LINKS, noise) == ""

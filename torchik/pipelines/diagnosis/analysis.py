@@ -6,8 +6,9 @@ For a batch of B recordings of the same length tracked with one model (links L, 
   sin of the angle), and r_link = R_hat^T r, the same in the estimated link frame;
 - u [T,B,L,3]: velocity residual w_m - w_hat (world), w_hat = J nu of the estimate;
 - e [T,B,L,3]: the disagreement of a sensor's two streams, its gyro against the rate of its own
-  orientations: S(w_m) - w_fd(R_m), S the Simpson average (1,4,1)/6 that a central difference of
-  orientations computes, so that e is O(dt^4) on consistent streams. It does not depend on the
+  orientations: S(w_m) - w_fd(R_m), S the rate that a central difference of orientations computes
+  (central_rate: the Simpson average (1,4,1)/6 and a coning term), so that e is O(dt^4) on
+  consistent streams. It does not depend on the
   model (it is u - dr/dt to first order) and carries the gyro's own effects;
 - position: r_p = p_m - p_hat [T,B,3] of the base link, and e_p = S(v_m) - dp_m/dt [T,B,3];
 - joint positions s [T,B,n] and active-limit flags [T,B,n];
@@ -34,45 +35,11 @@ from ...method.settings import TrackerSettings
 from ...method.state import State, TargetSequence, Trajectory
 from ...method.tracker import DynamicalIK
 from ..evaluation import link_motion
+from .series import central_difference, central_rate, simpson
 
 DEFAULT_GAIN = TrackerSettings.orientation_gain  # the tracker's K (1/s), from its one source
 NO_LIMIT = 19.9  # rad: a range this wide is no limit (the URDFs write +-10 rad for none)
 LIMIT_TOLERANCE = 0.01  # rad: a joint this close to a finite limit is at it
-
-
-def simpson(x: torch.Tensor) -> torch.Tensor:
-    """(x_{k-1} + 4 x_k + x_{k+1}) / 6 along dim 0, the ends kept: the mean of x over [t-dt, t+dt]
-    that a central difference of its integral sees. x: [T,...] -> [T,...]."""
-    if x.shape[0] < 3:
-        return x.clone()
-    out = x.clone()
-    out[1:-1] = (x[:-2] + 4.0 * x[1:-1] + x[2:]) / 6.0
-    return out
-
-
-def central_difference(x: torch.Tensor, time: torch.Tensor) -> torch.Tensor:
-    """dx/dt by central differences (one-sided at the ends). x: [T,...]; time [T] -> [T,...]."""
-    ahead, behind = torch.cat((x[1:], x[-1:])), torch.cat((x[:1], x[:-1]))
-    span = torch.cat((time[1:], time[-1:])) - torch.cat((time[:1], time[:-1]))
-    return (ahead - behind) / span.view(-1, *([1] * (x.dim() - 1)))
-
-
-def lowpass(x: torch.Tensor, time: torch.Tensor, cutoff: float) -> torch.Tensor:
-    """Zero-phase low-pass of x [T,...] along time: the spectrum kept below 0.7 cutoff, tapered by a
-    raised cosine to zero at cutoff (Hz). The ends are mirrored first, so a constant stays a
-    constant. Linear and time-invariant: fitting lowpass(e) = lowpass(X) theta is fitting e = X theta
-    without the high-frequency noise of differentiated orientations."""
-    T = x.shape[0]
-    if T < 8:
-        return x.clone()
-    rate = 1.0 / float(torch.diff(time).median())
-    x = x.movedim(0, -1)  # time last: the transforms run on contiguous series
-    padded = torch.cat((x.flip(-1), x, x.flip(-1)), dim=-1)
-    f = torch.fft.rfftfreq(3 * T, d=1.0 / rate).to(x.dtype)
-    gain = torch.clamp((cutoff - f) / (0.3 * cutoff), 0.0, 1.0)
-    gain = 0.5 - 0.5 * torch.cos(torch.pi * gain)
-    spectrum = torch.fft.rfft(padded, dim=-1) * gain
-    return torch.fft.irfft(spectrum, n=3 * T, dim=-1)[..., T:2 * T].movedim(-1, 0)
 
 
 @dataclass
@@ -226,7 +193,7 @@ def analyse(model: KinematicModel, recordings: Sequence[Recording], links, traje
     T, B, L = R_safe.shape[:3]  # every subject's links at once: [T,B*L,3,3]
     w_fd = torch.from_numpy(angular_velocity_from_orientations(R_safe.reshape(T, B * L, 3, 3).numpy(),
                                                                time.numpy())).reshape(T, B, L, 3)
-    e = simpson(w_safe) - w_fd
+    e = central_rate(w_safe, time) - w_fd
     # a sample next to a missing one has no central difference
     near = valid & torch.cat((valid[:1], valid[:-1])) & torch.cat((valid[1:], valid[-1:]))
     valid = near & torch.isfinite(e).all(-1)
@@ -280,25 +247,6 @@ def _task_jacobian(model: KinematicModel, trajectory: Trajectory, links, sample:
 
 
 # ------------------------------------------------------------------------------ structure
-def autocorrelation_time(x: torch.Tensor, axis: int = 0) -> float:
-    """Integrated autocorrelation time of a series (Sokal's window: sum lags until 5 tau), >= 1.
-    x: [T,...] (the other dims averaged)."""
-    T = x.shape[axis]
-    if T < 4:
-        return 1.0
-    # in numpy: the scores call this on every candidate's short series, where torch's per-call cost dominates
-    series = x.movedim(axis, 0).reshape(T, -1).double().numpy()
-    series = series - series.mean(0)
-    f = np.fft.rfft(series, n=2 * T, axis=0)
-    acf = np.fft.irfft((f.real ** 2 + f.imag ** 2).sum(-1), n=2 * T)[:T]  # summed over the other dims
-    if acf[0] <= 0:
-        return 1.0
-    taus = 1.0 + 2.0 * np.cumsum(acf[1:] / acf[0])  # tau summed up to lag k = 1, 2, ...
-    stop = np.flatnonzero(np.arange(1, T) >= 5.0 * taus)
-    tau = float(taus[stop[0]] if len(stop) else taus[-1])
-    return float(min(max(tau, 1.0), T / 4.0))
-
-
 @dataclass
 class NoiseFloor:
     """What a correct model leaves, estimated from the residual of subject b (after the transient):

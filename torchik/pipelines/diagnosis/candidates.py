@@ -36,4 +36,17 @@ def candidates(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tens
         out += position.fit(analysis, b, train, test)
     out = [c for c in out if c.kind in wanted and (target is None or c.target == target)
            and (c.fit is None or math.isfinite(c.score))]
+    _weigh_turns(out)
     return sorted(out, key=lambda c: -c.score)
+
+
+def _weigh_turns(out: list[Effect]) -> None:
+    """A gyro bias whose integral a turn about the vertical explains as well (GyroBias.implausible)
+    is that link's heading drift only if its orientations turn too: the drift candidate of the same
+    link, scored on them and the gyro together, leaves its score beside the bias. A bias along the
+    sensor axis of a link that stays upright (a foot, a hand) also looks like a vertical turn to the
+    gyro alone, but the orientations do not follow it."""
+    drifts = {c.target: c.score for c in out if c.kind == "heading_drift" and c.fit is not None}
+    for c in out:
+        if c.kind == "gyro_bias" and "vertical_turn_score" in c.params and c.target in drifts:
+            c.params["drift_score"] = drifts[c.target]

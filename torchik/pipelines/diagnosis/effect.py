@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from ...io.recording import Recording
-from .analysis import autocorrelation_time, lowpass
+from .series import autocorrelation_time, lowpass
 
 SIGNIFICANT = 10.0
 
@@ -201,6 +201,7 @@ class Effect:
 
     model_effect = False  # True: added to the URDF (augment); False: to the measurements (correct)
     additive: ClassVar[tuple[str, ...]] = ()  # the parameters that compose by addition (refine)
+    judged: ClassVar[tuple[str, ...]] = ()  # params set beside the held-out score (candidates.py): a refit keeps them
     error = "mnte"  # the overall error it must lower to be kept (Errors.overall's key)
 
     per_sample = False  # a value fitted at every sample (a joint angle): it explains noise on its test samples too

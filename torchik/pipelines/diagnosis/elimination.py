@@ -27,6 +27,7 @@ from . import frames, joints
 from .analysis import Analysis, analyse, noise_floor
 from .candidates import candidates
 from .effect import Effect, halves
+from .placement import WITHIN_NOISE, Misalignment
 from .subject import Subject, analyse_subjects, trajectory_of
 
 # effects fitted on a sensor's streams against each other (gyro.py, position.py), which no model or
@@ -75,6 +76,24 @@ def related(a: Effect, b: Effect, model: KinematicModel, urdf: str, links: Seque
     side of one joint (neighbourhood). Effects on links further apart are not each other's echoes,
     and their variants need not be tracked."""
     return bool(reach(a, model, links) & neighbourhood(b, model, urdf, links))
+
+
+def hanger_on(candidate: Effect, kept: Sequence[Effect], model: KinematicModel, urdf: str, links: Sequence[str],
+              noise_rms: float) -> str:
+    """Why `candidate` is what a kept effect leaves beside it ("" when it is not): a misalignment
+    within WITHIN_NOISE times the noise's rms (rad; one sample's 95 % range) on a link related to a
+    kept effect. That effect fitted a few per cent off (a drift, a delay) leaves the links next to
+    it turned by a fraction of a degree, steady enough to score; alone, so small an offset may be a
+    strap's, and is kept."""
+    if not isinstance(candidate, Misalignment):
+        return ""
+    angle = float(torch.tensor(candidate.params["rotation_vector"]).norm())
+    if angle > WITHIN_NOISE * noise_rms:
+        return ""
+    near = [e for e in kept if related(candidate, e, model, urdf, links)]
+    return (f"its angle, {math.degrees(angle):.2f} deg, is within {WITHIN_NOISE:g} times the noise's "
+            f"{math.degrees(noise_rms):.2f} deg rms, beside the kept {near[0].kind} at {near[0].target}: what "
+            f"that leaves" if near else "")
 
 
 def without(recording: Recording, urdf: str, kept: Sequence[Effect], drop: Effect | None) -> tuple[Recording, str]:

@@ -15,16 +15,18 @@ seconds. Fits are closed form: a regression, and a lag search refined by a parab
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from ...io.recording import Recording
-from .analysis import Analysis, simpson
+from .analysis import Analysis
 from .effect import Effect, Score, lowpass_blocks, replace, score, shift
 from .integral import integral_fit, integrated, spacing, whitener
 from .placement import MAX_DELAY
+from .series import simpson
 
 MAX_SCALE = 0.1  # a gyro whose scale is off by more than this is broken, not miscalibrated
 MAX_BIAS = 10.0  # deg/s: an uncalibrated MEMS gyro's zero-rate offset stays within this; beyond, a unit or axis error
@@ -38,7 +40,7 @@ def _link(recording: Recording, name: str) -> int:
 class GyroBias(Effect):
     """A constant angular-velocity bias params['bias'] [3] (rad/s, sensor frame) on a link's gyro."""
 
-    additive, error = ("bias",), "rmse"
+    additive, error, judged = ("bias",), "rmse", ("drift_score",)
 
     def apply(self, recording, sign):
         i, b = _link(recording, self.target), np.asarray(self.params["bias"])
@@ -48,10 +50,12 @@ class GyroBias(Effect):
 
     def implausible(self):
         size = float(np.degrees(np.linalg.norm(self.params["bias"])))
-        if "vertical_turn_score" in self.params:
+        drift = self.params.get("drift_score", math.inf)  # candidates._weigh_turns: the orientations' word
+        if "vertical_turn_score" in self.params and drift >= self.score:
             return (f"what its gyro shows is a turn at a constant rate about the vertical (score "
                     f"{self.params['vertical_turn_score']:.0f} with one parameter, against {self.score:.0f} with the "
-                    f"bias' three): a heading drift of this sensor, which also turns its orientations")
+                    f"bias' three): a heading drift of this sensor, which also turns its orientations"
+                    + (f" (the drift scores {drift:.0f} on them and the gyro)" if math.isfinite(drift) else ""))
         return (f"a bias of {size:.3g} deg/s, beyond the {MAX_BIAS:g} deg/s a gyro has: a sign of a stream in other "
                 f"units or axes, or of orientations that are not this sensor's" if size > MAX_BIAS else "")
 

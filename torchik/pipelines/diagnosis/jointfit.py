@@ -35,8 +35,9 @@ from typing import NamedTuple, Sequence
 import numpy as np
 import torch
 
-from .analysis import Analysis, autocorrelation_time
+from .analysis import Analysis
 from .effect import SIGNIFICANT, Effect, halves, score
+from .series import autocorrelation_time
 from .subject import Subject, analyse_subjects
 
 CHANNELS = ("r", "u", "e", "r_p")  # the residuals the measurement effects act on (see Analysis)

@@ -207,7 +207,8 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
     noise = noise_floor(*s.current)
     passing = []
     for c in found:
-        why = c.significant(threshold, noise.axis_rms)
+        why = c.significant(threshold, noise.axis_rms) or elimination.hanger_on(
+            c, [st.effect for st in s.steps], s.model, s.urdf, s.current[0].links, noise.axis_rms)
         if not why:
             passing.append(c)
         elif c.score > threshold:
@@ -223,7 +224,8 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
         if any(area[0] & near or reach & area[1] for reach, near in areas):
             continue
         final = s.refit(c) or c
-        final.fit = c.fit  # the score is the held-out one
+        final.fit = c.fit  # the score is the held-out one, and so are the judgements made beside it
+        final.params.update({name: c.params[name] for name in c.judged if name in c.params})
         why = final.implausible() or posture.held_by_reference(final, s.model, s.current[0].poses[s.current[1]])
         if why:
             final.notes = "; ".join(filter(None, [final.notes, f"implausible: {why}"]))

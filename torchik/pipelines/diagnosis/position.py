@@ -18,8 +18,9 @@ import numpy as np
 import torch
 
 from ...method import so3
-from .analysis import Analysis, simpson
+from .analysis import Analysis
 from .effect import Effect, lowpass_blocks, replace, score
+from .series import simpson
 
 MAX_OFFSET = 0.3  # m: a point on the pelvis is within this of its origin
 
