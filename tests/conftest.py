@@ -75,3 +75,14 @@ def kept_subject(model, urdf: str, recording, kept, links):
     s.derived = s.current[0].derived[0]
     s.steps = [Step(effect, errors(*s.current), errors(*s.current)) for effect in kept]
     return s
+
+
+def human48_walk(seconds: float, seed: int, orientation_noise: float, gyro_noise: float = 0.02):
+    """(Human48, its URDF, a built-in walk of `seconds` at 50 Hz with that sensor noise on its
+    tracked links): the recording most diagnosis tests inject their effects into."""
+    from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
+    from torchik.synthetic.scenarios import scenario
+
+    model = load_model("human48")
+    return model, human_urdf(48), scenario("walking", model, TRACKED_LINKS["human48"], seconds, 50.0, seed=seed,
+                                           orientation_noise=orientation_noise, gyro_noise=gyro_noise)

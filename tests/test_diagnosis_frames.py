@@ -24,13 +24,13 @@ import json
 
 import numpy as np
 import pytest
+from conftest import human48_walk
 
-from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
+from torchik.method.models import TRACKED_LINKS
 from torchik.pipelines.diagnosis.calibration import apply_calibration
 from torchik.pipelines.diagnosis.effect import replace
 from torchik.pipelines.diagnosis.frames import KIND, KINDS, MIN_REMOVED, SWAP, FlippedFrame, SwappedSegments, large_residual
 from torchik.pipelines.diagnosis.loop import diagnose
-from torchik.synthetic.scenarios import scenario
 
 LINKS = TRACKED_LINKS["human48"]
 FLIPS = ((("LeftHand",), "x", (1.0, -1.0, -1.0)), (("RightLowerLeg",), "z", (-1.0, -1.0, 1.0)),
@@ -54,9 +54,7 @@ def _swapped(walk, pair) -> object:
 
 @pytest.fixture(scope="module")
 def walk(one_thread):
-    model = load_model("human48")
-    return model, human_urdf(48), scenario("walking", model, LINKS, 5.0, 50.0, seed=5, orientation_noise=0.005,
-                                           gyro_noise=0.02)
+    return human48_walk(5.0, seed=5, orientation_noise=0.005)
 
 
 @pytest.fixture(scope="module")

@@ -13,11 +13,11 @@ Recordings: Human48 walking, 5 s at 50 Hz, the scenarios' sensor noise; gyro bia
 from __future__ import annotations
 
 import pytest
+from conftest import human48_walk
 
-from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
+from torchik.method.models import TRACKED_LINKS
 from torchik.pipelines.diagnosis.gyro import GyroBias
 from torchik.pipelines.diagnosis.loop import diagnose
-from torchik.synthetic.scenarios import scenario
 
 LINKS = TRACKED_LINKS["human48"]
 ROUNDS = 4
@@ -25,9 +25,7 @@ ROUNDS = 4
 
 @pytest.fixture(scope="module")
 def walk(one_thread):
-    model = load_model("human48")
-    return model, human_urdf(48), scenario("walking", model, LINKS, 5.0, 50.0, seed=5, orientation_noise=0.005,
-                                           gyro_noise=0.02)
+    return human48_walk(5.0, seed=5, orientation_noise=0.005)
 
 
 def _run(walk, targets):

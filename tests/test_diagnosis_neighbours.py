@@ -23,22 +23,20 @@ from __future__ import annotations
 import math
 
 import pytest
+from conftest import human48_walk
 
 from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.diagnosis.effect import SIGNIFICANT, Score
 from torchik.pipelines.diagnosis.elimination import hanger_on
 from torchik.pipelines.diagnosis.loop import diagnose
 from torchik.pipelines.diagnosis.placement import HeadingDrift, Misalignment, SensorDelay
-from torchik.synthetic.scenarios import scenario
 
 LINKS = TRACKED_LINKS["human48"]
 
 
 @pytest.fixture(scope="module")
 def walk(one_thread):
-    model = load_model("human48")
-    return model, human_urdf(48), scenario("walking", model, LINKS, 8.0, 50.0, seed=4, orientation_noise=0.01,
-                                           gyro_noise=0.02)
+    return human48_walk(8.0, seed=4, orientation_noise=0.01)
 
 
 def _kept(walk, effect):

@@ -27,7 +27,7 @@ from . import frames, joints
 from .analysis import Analysis, analyse, noise_floor
 from .candidates import candidates
 from .effect import Effect, halves
-from .placement import WITHIN_NOISE, Misalignment
+from .placement import Misalignment
 from .subject import Subject, analyse_subjects, trajectory_of
 
 # effects fitted on a sensor's streams against each other (gyro.py, position.py), which no model or
@@ -76,6 +76,9 @@ def related(a: Effect, b: Effect, model: KinematicModel, urdf: str, links: Seque
     side of one joint (neighbourhood). Effects on links further apart are not each other's echoes,
     and their variants need not be tracked."""
     return bool(reach(a, model, links) & neighbourhood(b, model, urdf, links))
+
+
+WITHIN_NOISE = 2.0  # a misalignment beside a kept effect must exceed this many times the noise's rms (hanger_on)
 
 
 def hanger_on(candidate: Effect, kept: Sequence[Effect], model: KinematicModel, urdf: str, links: Sequence[str],

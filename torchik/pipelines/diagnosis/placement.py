@@ -39,7 +39,6 @@ from .integral import agreement
 MAX_DELAY = 0.25  # s: a sensor later than this on the others is no delay but a different recording
 MAX_DRIFT = 5.0  # deg/s: heading drift of inertial sensors is a fraction of this
 MAX_MISALIGNMENT = 45.0  # deg: the most a strap or a marker cluster turns a sensor on its segment
-WITHIN_NOISE = 2.0  # a misalignment beside a kept effect must exceed this many times the noise's rms (elimination.hanger_on)
 IDENTIFIABLE = 1e-2  # eigenvalues of G^T M G below this share of the largest: a direction not identified
 LEVERAGE = 1e-3  # a direction that leaves less of itself in the residual (G^T M G against G^T G): followed by the joints
 

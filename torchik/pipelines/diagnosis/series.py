@@ -24,16 +24,20 @@ def central_rate(w: torch.Tensor, time: torch.Tensor) -> torch.Tensor:
     less the second Magnus term (h^2 / 3) w x dw/dt. The axis of a limb's rotation moves (coning),
     and without that term the two differ by O(h^2), not O(h^4): at 50 Hz a walking arm's consistent
     streams disagree by a steady 0.3 deg/s, which would pass for a gyro bias or a heading drift."""
-    view = (-1,) + (1,) * (w.dim() - 1)
-    half = 0.5 * (torch.cat((time[1:], time[-1:])) - torch.cat((time[:1], time[:-1]))).view(view)
+    half = 0.5 * _span(time, w.dim())
     return simpson(w) - half.square() / 3.0 * torch.linalg.cross(w, central_difference(w, time), dim=-1)
 
 
 def central_difference(x: torch.Tensor, time: torch.Tensor) -> torch.Tensor:
     """dx/dt by central differences (one-sided at the ends). x: [T,...]; time [T] -> [T,...]."""
     ahead, behind = torch.cat((x[1:], x[-1:])), torch.cat((x[:1], x[:-1]))
+    return (ahead - behind) / _span(time, x.dim())
+
+
+def _span(time: torch.Tensor, dims: int) -> torch.Tensor:
+    """t_{k+1} - t_{k-1} (one step at the ends) [T], shaped [T,1,...] to divide a [T,...] of `dims` dims."""
     span = torch.cat((time[1:], time[-1:])) - torch.cat((time[:1], time[:-1]))
-    return (ahead - behind) / span.view(-1, *([1] * (x.dim() - 1)))
+    return span.view(-1, *([1] * (dims - 1)))
 
 
 def lowpass(x: torch.Tensor, time: torch.Tensor, cutoff: float) -> torch.Tensor:
