@@ -94,9 +94,10 @@ def dispersion(gains, predicted) -> float:
     return float((np.square(g - m * P) / P).sum() / (4.0 * (len(g) - 1)))
 
 
-def score(y: torch.Tensor, leftover: torch.Tensor, k: float, per_sample: int = 0) -> Score:
+def score(y: torch.Tensor, leftover: torch.Tensor, k: float, per_sample: int = 0, free: float = math.inf) -> Score:
     """Score of an effect on test data. y, leftover: [n_t, d] (time first); k parameters plus
-    `per_sample` values fitted one per time sample (counted per independent sample)."""
+    `per_sample` values fitted one per time sample (counted per independent sample, and at most
+    `free`: those of a series smoothed to a bandwidth B over a time T are 2 B T)."""
     y, leftover = y.reshape(y.shape[0], -1), leftover.reshape(leftover.shape[0], -1)
     n_t, d = y.shape
     if n_t < 4 or d == 0:  # nothing to score on (too short, or an effect that predicts no residual)
@@ -105,7 +106,7 @@ def score(y: torch.Tensor, leftover: torch.Tensor, k: float, per_sample: int = 0
     tau = autocorrelation_time(leftover)
     sigma2 = max(rss1 / (n_t * d), 1e-30)
     n_eff = n_t * d / tau
-    penalty = (k + per_sample / tau) * math.log(max(n_eff, 2.0))
+    penalty = (k + min(per_sample / tau, free)) * math.log(max(n_eff, 2.0))
     parts = list(zip(y.tensor_split(min(CHUNKS, n_t)), leftover.tensor_split(min(CHUNKS, n_t))))
     chunks = tuple(float(a.square().sum() - b.square().sum()) / (sigma2 * tau) for a, b in parts)
     predicted = tuple(float((a - b).square().sum()) / (sigma2 * tau) for a, b in parts)

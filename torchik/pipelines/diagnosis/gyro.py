@@ -24,7 +24,7 @@ import torch
 from ...io.recording import Recording
 from .analysis import Analysis
 from .effect import Effect, Score, lowpass_blocks, replace, score, shift
-from .integral import integral_fit, integrated, spacing, whitener
+from .integral import integral_fit, integrated, quieter_frame, spacing, whitener
 from .placement import MAX_DELAY
 from .series import simpson
 
@@ -168,35 +168,41 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
 
 def _bias(name: str, e: torch.Tensor, R: torch.Tensor, ok: torch.Tensor, time: torch.Tensor) -> GyroBias | None:
     """The GyroBias of one gyro from its disagreement e [T,3] with its orientations R [T,3,3] (valid
-    where ok [T]), fitted in integral form: C(t) = int e dt = G(t) b + noise, G(t) = int R dt, on one
-    half of the time (the first) and scored on the other, each integrated from its own start
-    (halves of its own, not fit's alternating blocks: a second's span shows a bias no better than e
-    does); its value then from the whole time. None where either half has under 8 valid samples.
+    where ok [T]), fitted in integral form (integral.py): C(t) = int F e dt = int F R dt b + noise,
+    on one half of the time and scored on the other, both ways round, each half integrated from its
+    own first block (halves of its own, not fit's alternating blocks: a second's span shows a bias no
+    better than e does); its value then from the whole time. None where either half has under 8 valid samples.
 
-    The orientations' noise n enters e differentiated, a blue noise whose integral is n(t) - n(t0):
-    told from a bias only over long spans, not sample by sample. But the integral also holds a random
-    walk (the gyro's own noise, and n x w where a world-frame gyro and the noisy orientations
-    disagree on the frame): C's noise is modelled as A (I + 1 1^T) + q min(t_i, t_j) at samples
-    integral.SPACING apart, A and q from how the train half's increments grow with their lag (once what the fit
-    leaves), and both sides of the test half whitened by it before the score (which then sees
-    independent samples)."""
-    stride = spacing(time)
+    The integral's noise: a stationary part (the orientations' noise n, whose derivative telescopes)
+    and a random walk (the gyro's own noise, and n x w where the gyro's rates were put in the world
+    frame by other orientations than the recorded ones), their sizes from the whole time (fitted with
+    the bias, so a bias does not pass for a walk); both sides of the test half are whitened by it
+    before the score, which then sees independent samples. The frame F, world or sensor, is the one
+    the noise is smaller in (integral.quieter_frame)."""
     first = torch.arange(len(time)) < len(time) // 2
-    halves = integrated(e, R, ok & first, time), integrated(e, R, ok & ~first, time)
-    if min(len(halves[0][0]), len(halves[1][0])) < 8:  # as every fit here: too short a recording to fit on
+    shortest = min(int((ok & first).sum()), int((ok & ~first).sum()))
+    if shortest < 8:  # as every fit here: too short a recording to fit on
         return None
-    stride = min(stride, min(len(halves[0][0]), len(halves[1][0])) // 4)  # at least four samples a half
-    # one fold only: scored both ways round, 3 of the study's 20 clean recordings kept a bias
-    fit = _held_out(halves[0], halves[1], stride, 3)
-    # the value itself from the whole time, once the score has shown it holds on time it was not fitted on
-    bias, cov, _ = integral_fit(*integrated(e, R, ok, time), stride)
-    params: dict = dict(bias=bias.tolist())
-    # a heading drift makes e a constant -rate z in the world frame: one parameter for what a bias
-    # would need three, and where it explains the integral as well, it is the drift
+    stride = min(spacing(time), shortest // 5)  # at least four blocks a half past its first
     vertical = torch.tensor([0.0, 0.0, -1.0], dtype=e.dtype).expand(len(time), 3)[..., None]
-    turns = integrated(e, vertical, ok & first, time), integrated(e, vertical, ok & ~first, time)
-    turn = _held_out(turns[0], turns[1], stride, 1)
-    if turn.score >= fit.score:
+    frame, e_F, (G_F, turn_F) = quieter_frame(e, R, [R, vertical], ok, time, stride)
+    # the value from the whole time, once the score has shown it holds on time it was not fitted on;
+    # the noise model too: from a half's dozen blocks it can be far off (10504's clean lower leg: the
+    # first half's walk 13 times below the gyro's, and a 0.17 deg/s "bias" scored 30 on the second)
+    bias, cov, noise = integral_fit(*integrated(e_F, G_F, ok, time, stride))
+    halves = integrated(e_F, G_F, ok & first, time, stride), integrated(e_F, G_F, ok & ~first, time, stride)
+    turns = integrated(e_F, turn_F, ok & first, time, stride), integrated(e_F, turn_F, ok & ~first, time, stride)
+    # scored both ways round, the weaker kept: a bias holds whichever half it is fitted on, and of the
+    # study's 1711 links without one, the one that passed on one half did not on the other
+    folds = [(_held_out(halves[a], halves[b], 3, noise), _held_out(turns[a], turns[b], 1, noise))
+             for a, b in ((0, 1), (1, 0))]
+    (fit, leftover), (turn, turn_leftover) = min(folds, key=lambda fold: fold[0][0].calibrated)
+    params: dict = dict(bias=bias.tolist(), frame=frame)
+    # a heading drift makes e a constant -rate z in the world frame: one parameter for what a bias
+    # would need three, and where it leaves as little of the test half (in the bias' noise model, and
+    # the likelihood ratio less what the two more parameters cost), it is the drift
+    n = turn_leftover.numel()
+    if n * math.log(float(turn_leftover.square().sum()) / float(leftover.square().sum())) <= 2 * math.log(n):
         params["vertical_turn_score"] = turn.score
     return GyroBias("gyro_bias", name, params, dict(bias=cov.diagonal().sqrt().tolist()), 3, fit)
 
@@ -204,12 +210,14 @@ def _bias(name: str, e: torch.Tensor, R: torch.Tensor, ok: torch.Tensor, time: t
 Integral = tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # (C, int G, t) of integral.integrated
 
 
-def _held_out(train: Integral, test: Integral, stride: int, k: int) -> Score:
-    """The score, on the test half's integral, of the effect of k parameters fitted on the train half's."""
-    bias, _, noise = integral_fit(*train, stride)
+def _held_out(train: Integral, test: Integral, k: int, noise: tuple[float, float]) -> tuple[Score, torch.Tensor]:
+    """The score, on the test half's integral, of the effect of k parameters fitted on the train half's,
+    and what it leaves there [K,d], whitened by the noise model `noise` (integral_fit's (A, q))."""
+    theta = integral_fit(*train)[0]
     C_te, G_te, t_te = test
-    W = whitener(noise, t_te[stride::stride])  # the train half's noise model: nothing of the test half chooses it
-    return score(W @ C_te[stride::stride], W @ (C_te - G_te @ bias)[stride::stride], k)
+    W = whitener(noise, t_te)
+    leftover = W @ (C_te - G_te @ theta)
+    return score(W @ C_te, leftover, k), leftover
 
 
 def _delay(name: str, w_low: torch.Tensor, e: torch.Tensor, tr: torch.Tensor, te: torch.Tensor, time: torch.Tensor,

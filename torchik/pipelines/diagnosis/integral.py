@@ -3,82 +3,141 @@
 The orientations' noise n enters e differentiated, a blue noise whose integral is n(t) - n(t0):
 told from a constant only over long spans, not sample by sample. So an effect that makes e a
 constant in some frame (a gyro's bias in its own, a heading drift about the world's vertical) is
-fitted on C(t) = int e dt = G(t) theta + noise, its integral, whose noise is modelled as
-A (I + 1 1^T) + q min(t_i, t_j) at samples SPACING apart: a stationary part (the orientations' noise
+fitted on C(t) = int e dt = G(t) theta + noise, its integral (averaged over blocks SPACING long),
+whose noise is modelled as A (I + 1 1^T) + q min(t_i, t_j): a stationary part (the orientations' noise
 at the span's start and now) and a random walk (the gyro's own noise, and n x w where a world-frame
 gyro and the noisy orientations disagree on the frame).
 """
 
 from __future__ import annotations
 
+import functools
+
 import torch
 
-SPACING = 0.5  # s: the integrals' samples fitted on, apart by more than the orientations' noise is correlated
+SPACING = 0.5  # s: the integrals' blocks, longer than the orientations' noise is correlated
+SHARES = 43  # the grid of the stationary part's share in the integral's noise
 
 
 def spacing(time: torch.Tensor) -> int:
-    """The stride, in samples of time [T], that puts the fitted samples SPACING apart."""
+    """The stride, in samples of time [T], that makes the blocks SPACING long."""
     return max(1, int(round(SPACING / float(torch.diff(time).median()))))
 
 
-def integrated(e: torch.Tensor, G: torch.Tensor, keep: torch.Tensor, time: torch.Tensor
+def integrated(e: torch.Tensor, G: torch.Tensor, keep: torch.Tensor, time: torch.Tensor, stride: int
                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(C [K,d], int G [K,d,k], t [K]) over the K samples where keep [T]: e [T,d] and the effect's
-    regressor G [T,d,k] integrated from the span's first kept sample (which then holds nothing: its
-    noise is the others' constant), and the time since it."""
+    """(C [K,d], int G [K,d,k], t [K]): e [T,d] and the effect's regressor G [T,d,k] integrated over
+    the samples where keep [T], averaged over blocks of `stride` of them, each less the first block's
+    average, and the time since the first block's middle. K is one less than the whole blocks.
+
+    The average, not a sample: the orientations' noise in C is as large as a bias' integral over
+    seconds, and over a block it averages down by the blocks' length in its correlation times; a
+    bias' straight line keeps its value at the block's middle."""
     dt = float(torch.diff(time).median())
     C = torch.cumsum(torch.where(keep[:, None], e, 0.0), 0)[keep] * dt
     GI = torch.cumsum(torch.where(keep[:, None, None], G, 0.0), 0)[keep] * dt
-    return C - C[0], GI - GI[0], time[keep] - time[keep][0]
+    t = time[keep]
+    blocks = len(t) // stride
+    mean = lambda x: x[:blocks * stride].reshape(blocks, stride, *x.shape[1:]).mean(1)  # noqa: E731
+    C, GI, t = mean(C), mean(GI), mean(t)
+    return C[1:] - C[0], GI[1:] - GI[0], t[1:] - t[0]
 
 
-def integral_fit(C: torch.Tensor, G: torch.Tensor, t: torch.Tensor, stride: int
-                  ) -> tuple[torch.Tensor, torch.Tensor, tuple[float, float]]:
-    """(theta [k], its covariance [k,k], the noise's (A, q)) of C = G theta + noise (C [T,d], G [T,d,k]
-    at times t [T]) by generalised least squares at every stride-th sample: the noise first estimated
-    from C, then from what the fit leaves (a constant would pass for a random walk)."""
-    d, k = G.shape[-2:]
-    theta = torch.zeros(k, dtype=C.dtype)
-    for _ in range(2):
-        noise = integral_noise(C - G @ theta, t, stride)
-        W = whitener(noise, t[stride::stride])
-        n = len(W)
-        X = (W @ G[stride::stride].reshape(n, d * k)).reshape(d * n, k)
-        y = (W @ C[stride::stride]).reshape(d * n)
-        N = X.T @ X
-        theta = torch.linalg.solve(N, X.T @ y)
-    return theta, float((y - X @ theta).square().mean()) * torch.linalg.inv(N), noise
+def integral_fit(C: torch.Tensor, G: torch.Tensor, t: torch.Tensor
+                 ) -> tuple[torch.Tensor, torch.Tensor, tuple[float, float]]:
+    """(theta [k], its covariance [k,k], the noise's (A, q)) of C = G theta + noise (C [K,d], G [K,d,k]
+    at times t [K], as `integrated` gives them) by generalised least squares, in the noise model
+    Sigma = A (I + 1 1^T) + q min(t_i, t_j) (_covariances) of the largest restricted likelihood: a
+    stationary part (the orientations' noise, in the first block and now) and a random walk (the
+    gyro's noise), their ratio searched on a logarithmic grid and their scale profiled out."""
+    n, d, k = G.shape
+    share = _SHARE.to(C.dtype)  # [S] the stationary part's, Sigma(share) = share S + (1 - share) B
+    logdet_B, P, D = _basis(tuple(float(x) for x in t))
+    P, D = P.to(C.dtype), D.to(C.dtype)
+    zC, zG = P @ C, (P @ G.reshape(n, d * k)).reshape(n, d, k)  # B and S both diagonal in this basis
+    v = share[:, None] * D + (1.0 - share[:, None])  # [S,n] Sigma's eigenvalues there
+    N = torch.einsum("si,idk,idl->skl", 1.0 / v, zG, zG)
+    theta = torch.linalg.solve(N, torch.einsum("si,idk,id->sk", 1.0 / v, zG, zC)[..., None])[..., 0]  # [S,k]
+    # restricted likelihood: a walk over a dozen blocks looks much like the line theta draws, and the
+    # plain likelihood, blind to what the fit took, put the walk's rate 17 times too low on one of the
+    # study's links (10100's L3, 0.52 deg/s of "bias" at a standard error of 0.05)
+    free = max(n * d - k, 1)
+    scale = ((zC - torch.einsum("idk,sk->sid", zG, theta)).square() / v[..., None]).sum((1, 2)) / free
+    nll = (d * (logdet_B + torch.log(v).sum(-1)) + torch.logdet(N) + free * torch.log(scale.clamp(min=1e-300)))
+    j = int(nll.argmin())
+    rho, s2 = float(share[j]), float(scale[j])
+    return theta[j], s2 * torch.linalg.inv(N[j]), (max(s2 * rho, 1e-12 * s2), s2 * (1.0 - rho) / float(t[-1]))
 
 
-def integral_noise(C: torch.Tensor, t: torch.Tensor, stride: int) -> tuple[float, float]:
-    """(A, q) of the integral's noise C [T,d] (times t [T]): Sigma = A (I + 1 1^T) + q min(t_i, t_j),
-    a stationary part (the orientations' noise, at the span's start and now) and a random walk. An
-    increment over a lag l past the noise's correlation has the variance 2 A + q l: both from the
-    increments at one stride and at four."""
-    lags = (stride, min(4 * stride, len(C) // 2))
-    V = [float((C[lag:] - C[:-lag]).square().mean()) for lag in lags]
-    span = float(t[lags[1]] - t[lags[0]]) if lags[1] > lags[0] else 1.0
-    q = max((V[1] - V[0]) / span, 0.0)
-    return max((V[0] - q * float(t[lags[0]])) / 2.0, 1e-6 * max(V[0], 1e-30)), q
+_RATIO = torch.logspace(-4.0, 4.0, SHARES - 2, dtype=torch.float64)  # A / (q t_K): either part may dominate
+_SHARE = torch.cat((torch.zeros(1, dtype=torch.float64), _RATIO / (1.0 + _RATIO), torch.ones(1, dtype=torch.float64)))
+
+
+@functools.lru_cache(maxsize=64)
+def _basis(t: tuple[float, ...]) -> tuple[float, torch.Tensor, torch.Tensor]:
+    """(log det B, P [K,K], D [K]) for blocks at times t: B = the walk's covariance / t_K = L L^T, and
+    P = U^T L^-1 with L^-1 S L^-T = U diag(D) U^T (S the stationary part's), so that P Sigma P^T =
+    share D + (1 - share) for every share at once. The same times come back round after round."""
+    stationary, walk = _covariances(torch.tensor(t, dtype=torch.float64))
+    L = torch.linalg.cholesky(walk / t[-1])
+    Linv = torch.linalg.solve_triangular(L, torch.eye(len(t), dtype=torch.float64), upper=False)
+    D, U = torch.linalg.eigh(Linv @ stationary @ Linv.T)
+    return 2.0 * float(torch.log(torch.diagonal(L)).sum()), U.T @ Linv, D
+
+
+def _covariances(t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The covariances [K,K] of integrated's blocks at times t [K] of a unit stationary noise, I + 1 1^T
+    (its block and the first's), and of a unit random walk: min(t_i, t_j) between blocks' averages
+    less (s/6)(I + 1 1^T) for blocks s long, what averaging a walk over its block and the first's
+    takes off (left in the stationary part's place, it needs a negative A where the walk dominates)."""
+    both = torch.eye(len(t), dtype=t.dtype) + 1.0
+    block = float(t[1] - t[0]) if len(t) > 1 else float(t[0])
+    return both, torch.minimum(t[:, None], t[None, :]) - block / 6.0 * both
 
 
 def whitener(noise: tuple[float, float], t: torch.Tensor) -> torch.Tensor:
-    """[n,n] W with W Sigma W^T = I, Sigma the covariance integral_noise gives at times t [n]."""
+    """[n,n] W with W Sigma W^T = I, Sigma the covariance of integral_fit's noise (A, q) at times t [n]."""
     A, q = noise
-    Sigma = A * (torch.eye(len(t), dtype=t.dtype) + 1.0) + q * torch.minimum(t[:, None], t[None, :])
+    stationary, walk = _covariances(t)
+    Sigma = A * stationary + q * walk
     return torch.linalg.inv(torch.linalg.cholesky(Sigma))
 
 
-def agreement(e: torch.Tensor, G: torch.Tensor, keep: torch.Tensor, time: torch.Tensor, theta: torch.Tensor) -> float:
-    """What the integral of e [T,d] (where keep [T]) says of the value theta [k] of an effect whose
-    regressor is G [T,d,k]: 2 log of the likelihood ratio of its prediction against none, |W C|^2 -
-    |W (C - G theta)|^2, in the noise model of what e's own fit leaves (which W whitens to unit
-    variance: not the variance a wrong prediction leaves, which would cap how far below zero it can
-    go). Far below zero where e contradicts theta (it predicts a drift of the integral that is not
-    there), near zero where e cannot tell."""
-    C, GI, t = integrated(e, G, keep, time)
-    stride = min(spacing(time), len(C) // 4)
+def quieter_frame(e: torch.Tensor, R: torch.Tensor, G: list[torch.Tensor], keep: torch.Tensor, time: torch.Tensor,
+                  stride: int) -> tuple[str, torch.Tensor, list[torch.Tensor]]:
+    """(frame, e_F [T,3], each regressor of G (world frame, [T,3,k]) in it): e [T,3], a gyro's
+    disagreement with its orientations R [T,3,3] (valid where keep [T]), in the frame, "world" or
+    "sensor", where its integral's noise (fitted with G[0]) is smaller at the end.
+
+    A recording's gyro rates are in the world frame, put there by some orientation: the recorded one
+    (a suit's own fusion), and e = -dn/dt, whose integral telescopes in the world frame; or another
+    (a reference's, a second fusion), which differs by the orientations' noise n, and e = -dn/dt + w x n
+    = -R dn'/dt with n' = R^T n: its integral telescopes in the sensor frame, and in the world frame
+    holds a random walk as large as n w (on a fast limb, several times the gyro's own noise)."""
+    Rt = R.transpose(-1, -2)
+    options = dict(world=(e, G), sensor=((Rt @ e[..., None])[..., 0], [Rt @ g for g in G]))
+    spread = {}
+    for frame, (e_F, G_F) in options.items():
+        C, GI, t = integrated(e_F, G_F[0], keep, time, stride)
+        A, q = integral_fit(C, GI, t)[2]
+        spread[frame] = 2.0 * A + q * float(t[-1])
+    frame = min(spread, key=spread.__getitem__)
+    return (frame, *options[frame])
+
+
+def agreement(e: torch.Tensor, R: torch.Tensor, G: torch.Tensor, keep: torch.Tensor, time: torch.Tensor,
+              theta: torch.Tensor) -> float:
+    """What the integral of a gyro's disagreement e [T,3] with its orientations R [T,3,3] (where keep
+    [T]) says of the value theta [k] of an effect whose regressor is G [T,3,k] (world frame): 2 log of
+    the likelihood ratio of its prediction against none, |W C|^2 - |W (C - G theta)|^2, in the frame
+    where e is quieter (quieter_frame) and the noise model of what e's own fit leaves (which W whitens
+    to unit variance: not the variance a wrong prediction leaves, which would cap how far below zero
+    it can go). Far below zero where e contradicts theta (it predicts a drift of the integral that is
+    not there), near zero where e cannot tell."""
+    stride = min(spacing(time), int(keep.sum()) // 5)
     if stride < 1:
         return 0.0
-    W = whitener(integral_fit(C, GI, t, stride)[2], t[stride::stride])
-    return float((W @ C[stride::stride]).square().sum() - (W @ (C - GI @ theta)[stride::stride]).square().sum())
+    _, e_F, (G_F,) = quieter_frame(e, R, [G], keep, time, stride)
+    C, GI, t = integrated(e_F, G_F, keep, time, stride)
+    W = whitener(integral_fit(C, GI, t)[2], t)
+    return float((W @ C).square().sum() - (W @ (C - GI @ theta)).square().sum())

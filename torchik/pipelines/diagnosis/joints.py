@@ -28,12 +28,13 @@ import torch
 from ...errors import InputError
 from ...method import so3
 from .analysis import Analysis, inverse_normal
-from .effect import Effect, score
+from .effect import Effect, lowpass_blocks, score
 
 REGULARISE = 0.05
 MAX_WIDENING = math.radians(30.0)  # rad: people's ranges differ by 10-20 deg; a limit further off is another error
 MAX_OFFSET = math.radians(30.0)  # rad: an added axis never this close to its zero, the reference pose's, sits off it
 MAX_RANGE = math.pi  # rad: no joint of a body moves over more than this about one axis
+ANGLE_BANDWIDTH = 4.0  # Hz: a joint's angle in walking and running; a missing axis' is fitted smoothed to it
 LEVERAGE = 1e-3  # a subtree the joints follow to within this share about every axis has no axis missing
 
 
@@ -261,13 +262,16 @@ def _missing(analysis, b, train, test, urdf, target=None) -> list[Effect]:
         a = a * (1.0 if float(a[int(a.abs().argmax())]) > 0 else -1.0)  # a line: its largest component positive
         q = (a @ Q @ a)  # [S]
         q = q.clamp(min=REGULARISE * float(q.median().clamp(min=1e-12)))
-        theta = (s @ a) / q
+        # an angle a body moves: within ANGLE_BANDWIDTH, and so fewer values than samples to fit
+        theta = lowpass_blocks((s @ a) / q, analysis.time[k], ANGLE_BANDWIDTH, tr, te)
         pred = (ME @ (R_p @ a)[..., None]).squeeze(-1) * theta[:, None]  # [S,R]
         rows = E[0].abs().sum(-1) > 0
         # a constant angle is a sensor misalignment: a DoF must explain the residual's variation in time
         mean = float((s[tr] @ a).sum() / q[tr].sum())
         steady = (ME @ (R_p @ a)[..., None]).squeeze(-1) * mean
-        fit = score((r - steady)[te][:, rows], (r - pred)[te][:, rows], 2, per_sample=int(te.sum()))
+        span = int(te.sum()) * float(torch.diff(analysis.time[k]).median())
+        fit = score((r - steady)[te][:, rows], (r - pred)[te][:, rows], 2, per_sample=int(te.sum()),
+                    free=2.0 * ANGLE_BANDWIDTH * span)
         # the axis' uncertainty: explained variance along it against the next direction, in noise units
         gap = float(val[-1] - val[-2]) if len(val) > 1 else float(val[-1])
         sd = math.sqrt(fit.sigma2 * fit.tau / max(gap, 1e-30))

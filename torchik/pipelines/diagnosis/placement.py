@@ -327,12 +327,12 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
         else:
             params, fit_d = dict(rate=float(head.theta[0]), t0=t0, t1=float(time[-1])), head.fit
             if not bool(derived[i]):
-                # a drifting heading turns the link's gyro with it (e_z = -rate): what its integral says,
+                # a drifting heading turns the link's gyro with it (e = -rate z): what its integral says,
                 # for or against, joins the score. The low-passed e_z of the fit barely tells a drift of
                 # a link's own sensor from its neighbour's where a ball joint takes up the turn between
                 # them and only the other side's joint shows it
-                e_z = analysis.e[:, b, i, 2:]
-                params["own_gyro_score"] = agreement(e_z, -torch.ones_like(e_z)[..., None], ok[:, i], time,
+                down = torch.tensor([0.0, 0.0, -1.0], dtype=time.dtype).expand(len(time), 3)[..., None]
+                params["own_gyro_score"] = agreement(analysis.e[:, b, i], analysis.R_m[:, b, i], down, ok[:, i], time,
                                                      head.theta[:1])
                 fit_d = dataclasses.replace(fit_d, score=fit_d.score + params["own_gyro_score"])
             out.append(HeadingDrift("heading_drift", name, params, dict(rate=float(head.cov[0, 0].clamp(min=0).sqrt())),
