@@ -112,5 +112,5 @@ def test_the_frame_a_gyro_integrates_quietly_in_is_the_one_its_rates_share_with_
     R_m = N @ R
     e = central_rate(gyro, TIME) - torch.from_numpy(angular_velocity_from_orientations(R_m[:, None].numpy(),
                                                                                       TIME.numpy()))[:, 0]
-    frame, *_ = quieter_frame(e[1:-1], R_m[1:-1], [R_m[1:-1]], EVERY[1:-1], TIME[1:-1], 25)  # no one-sided ends
-    assert frame == quieter
+    frame = quieter_frame(e[1:-1], R_m[1:-1], [R_m[1:-1]], EVERY[1:-1], TIME[1:-1], 25)  # no one-sided ends
+    assert frame.name == quieter

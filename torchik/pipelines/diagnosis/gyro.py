@@ -24,7 +24,7 @@ import torch
 from ...io.recording import Recording
 from .analysis import Analysis
 from .effect import Effect, Score, lowpass_blocks, replace, score, shift
-from .integral import integral_fit, integrated, quieter_frame, spacing, whitener
+from .integral import integral_fit, integrated, quieter_frame, spacing, vertical_turn, whitener
 from .placement import MAX_DELAY
 from .series import simpson
 
@@ -184,23 +184,21 @@ def _bias(name: str, e: torch.Tensor, R: torch.Tensor, ok: torch.Tensor, time: t
     if shortest < 8:  # as every fit here: too short a recording to fit on
         return None
     stride = min(spacing(time), shortest // 5)  # at least four blocks a half past its first
-    vertical = torch.tensor([0.0, 0.0, -1.0], dtype=e.dtype).expand(len(time), 3)[..., None]
-    frame, e_F, (G_F, turn_F) = quieter_frame(e, R, [R, vertical], ok, time, stride)
+    frame = quieter_frame(e, R, [R, vertical_turn(time)], ok, time, stride)
     # the value from the whole time, once the score has shown it holds on time it was not fitted on;
     # the noise model too: from a half's dozen blocks it can be far off (10504's clean lower leg: the
     # first half's walk 13 times below the gyro's, and a 0.17 deg/s "bias" scored 30 on the second)
-    bias, cov, noise = integral_fit(*integrated(e_F, G_F, ok, time, stride))
-    halves = integrated(e_F, G_F, ok & first, time, stride), integrated(e_F, G_F, ok & ~first, time, stride)
-    turns = integrated(e_F, turn_F, ok & first, time, stride), integrated(e_F, turn_F, ok & ~first, time, stride)
+    bias, cov, noise = frame.fit
+    halves = [[integrated(frame.e, G, ok & half, time, stride) for half in (first, ~first)] for G in frame.G]
     # scored both ways round, the weaker kept: a bias holds whichever half it is fitted on, and of the
     # study's 1711 links without one, the one that passed on one half did not on the other
-    folds = [(_held_out(halves[a], halves[b], 3, noise), _held_out(turns[a], turns[b], 1, noise))
-             for a, b in ((0, 1), (1, 0))]
-    (fit, leftover), (turn, turn_leftover) = min(folds, key=lambda fold: fold[0][0].calibrated)
-    params: dict = dict(bias=bias.tolist(), frame=frame)
+    folds = [((a, b), *_held_out(halves[0][a], halves[0][b], 3, noise)) for a, b in ((0, 1), (1, 0))]
+    (a, b), fit, leftover = min(folds, key=lambda fold: fold[1].calibrated)
+    params: dict = dict(bias=bias.tolist(), frame=frame.name)
     # a heading drift makes e a constant -rate z in the world frame: one parameter for what a bias
-    # would need three, and where it leaves as little of the test half (in the bias' noise model, and
-    # the likelihood ratio less what the two more parameters cost), it is the drift
+    # would need three, and where it leaves as little of the same test half (in the bias' noise
+    # model, and the likelihood ratio less what the two more parameters cost), it is the drift
+    turn, turn_leftover = _held_out(halves[1][a], halves[1][b], 1, noise)
     n = turn_leftover.numel()
     if n * math.log(float(turn_leftover.square().sum()) / float(leftover.square().sum())) <= 2 * math.log(n):
         params["vertical_turn_score"] = turn.score

@@ -12,6 +12,7 @@ gyro and the noisy orientations disagree on the frame).
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import torch
 
@@ -103,11 +104,27 @@ def whitener(noise: tuple[float, float], t: torch.Tensor) -> torch.Tensor:
     return torch.linalg.inv(torch.linalg.cholesky(Sigma))
 
 
+def vertical_turn(time: torch.Tensor) -> torch.Tensor:
+    """[T,3,1] the world-frame regressor of a heading drift's rate in e: a turn about the vertical
+    that the orientations make and the gyro does not see gives e = -rate z."""
+    return torch.tensor([0.0, 0.0, -1.0], dtype=time.dtype).expand(len(time), 3)[..., None]
+
+
+class Frame(NamedTuple):
+    """quieter_frame's answer: the frame's name, e [T,3] and the regressors [T,3,k] in it, and the
+    fit of G[0] on the whole span there (integral_fit's theta, covariance and noise)."""
+
+    name: str
+    e: torch.Tensor
+    G: list[torch.Tensor]
+    fit: tuple[torch.Tensor, torch.Tensor, tuple[float, float]]
+
+
 def quieter_frame(e: torch.Tensor, R: torch.Tensor, G: list[torch.Tensor], keep: torch.Tensor, time: torch.Tensor,
-                  stride: int) -> tuple[str, torch.Tensor, list[torch.Tensor]]:
-    """(frame, e_F [T,3], each regressor of G (world frame, [T,3,k]) in it): e [T,3], a gyro's
-    disagreement with its orientations R [T,3,3] (valid where keep [T]), in the frame, "world" or
-    "sensor", where its integral's noise (fitted with G[0]) is smaller at the end.
+                  stride: int) -> Frame:
+    """e [T,3], a gyro's disagreement with its orientations R [T,3,3] (valid where keep [T]), and the
+    world-frame regressors G ([T,3,k] each) in the frame, "world" or "sensor", where the integral's
+    noise (fitted with G[0]) is smaller at the end; with that fit.
 
     A recording's gyro rates are in the world frame, put there by some orientation: the recorded one
     (a suit's own fusion), and e = -dn/dt, whose integral telescopes in the world frame; or another
@@ -115,14 +132,14 @@ def quieter_frame(e: torch.Tensor, R: torch.Tensor, G: list[torch.Tensor], keep:
     = -R dn'/dt with n' = R^T n: its integral telescopes in the sensor frame, and in the world frame
     holds a random walk as large as n w (on a fast limb, several times the gyro's own noise)."""
     Rt = R.transpose(-1, -2)
-    options = dict(world=(e, G), sensor=((Rt @ e[..., None])[..., 0], [Rt @ g for g in G]))
-    spread = {}
-    for frame, (e_F, G_F) in options.items():
+    options = [("world", e, G), ("sensor", (Rt @ e[..., None])[..., 0], [Rt @ g for g in G])]
+    frames = []
+    for name, e_F, G_F in options:
         C, GI, t = integrated(e_F, G_F[0], keep, time, stride)
-        A, q = integral_fit(C, GI, t)[2]
-        spread[frame] = 2.0 * A + q * float(t[-1])
-    frame = min(spread, key=spread.__getitem__)
-    return (frame, *options[frame])
+        fit = integral_fit(C, GI, t)
+        A, q = fit[2]
+        frames.append((2.0 * A + q * float(t[-1]), Frame(name, e_F, G_F, fit)))  # the noise at the end
+    return min(frames, key=lambda option: option[0])[1]
 
 
 def agreement(e: torch.Tensor, R: torch.Tensor, G: torch.Tensor, keep: torch.Tensor, time: torch.Tensor,
@@ -137,7 +154,7 @@ def agreement(e: torch.Tensor, R: torch.Tensor, G: torch.Tensor, keep: torch.Ten
     stride = min(spacing(time), int(keep.sum()) // 5)
     if stride < 1:
         return 0.0
-    _, e_F, (G_F,) = quieter_frame(e, R, [G], keep, time, stride)
-    C, GI, t = integrated(e_F, G_F, keep, time, stride)
-    W = whitener(integral_fit(C, GI, t)[2], t)
+    frame = quieter_frame(e, R, [G], keep, time, stride)
+    C, GI, t = integrated(frame.e, frame.G[0], keep, time, stride)
+    W = whitener(frame.fit[2], t)
     return float((W @ C).square().sum() - (W @ (C - GI @ theta)).square().sum())

@@ -34,7 +34,7 @@ import torch
 from ...method import so3
 from .analysis import Analysis, inverse_normal
 from .effect import ABOVE_NOISE, SIGNIFICANT, Effect, Score, combine, lowpass_blocks, replace, rotation_about, score, shift
-from .integral import agreement
+from .integral import agreement, vertical_turn
 
 MAX_DELAY = 0.25  # s: a sensor later than this on the others is no delay but a different recording
 MAX_DRIFT = 5.0  # deg/s: heading drift of inertial sensors is a fraction of this
@@ -331,9 +331,8 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
                 # for or against, joins the score. The low-passed e_z of the fit barely tells a drift of
                 # a link's own sensor from its neighbour's where a ball joint takes up the turn between
                 # them and only the other side's joint shows it
-                down = torch.tensor([0.0, 0.0, -1.0], dtype=time.dtype).expand(len(time), 3)[..., None]
-                params["own_gyro_score"] = agreement(analysis.e[:, b, i], analysis.R_m[:, b, i], down, ok[:, i], time,
-                                                     head.theta[:1])
+                params["own_gyro_score"] = agreement(analysis.e[:, b, i], analysis.R_m[:, b, i], vertical_turn(time),
+                                                     ok[:, i], time, head.theta[:1])
                 fit_d = dataclasses.replace(fit_d, score=fit_d.score + params["own_gyro_score"])
             out.append(HeadingDrift("heading_drift", name, params, dict(rate=float(head.cov[0, 0].clamp(min=0).sqrt())),
                                     1, fit_d))
