@@ -9,6 +9,7 @@ import math
 import pytest
 import torch
 
+import torchik.method.capture as capture_module
 import torchik.method.captured as captured_module
 from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.method.state import TargetSequence
@@ -29,8 +30,19 @@ def walking():
 
 @pytest.fixture
 def uncompiled(monkeypatch):
-    """The captured step's function run as it is, uncompiled: its logic, without TorchInductor's cost."""
-    monkeypatch.setattr(captured_module, "capture", lambda fn, inputs: fn)
+    """The captured step's function run as it is, uncompiled, in the form it takes when traced
+    (`capture.tracing`): its logic, without TorchInductor's cost."""
+
+    def as_traced(fn, inputs):
+        def call(*args):
+            monkeypatch.setattr(capture_module, "_tracing", True)
+            try:
+                return fn(*args)
+            finally:
+                monkeypatch.setattr(capture_module, "_tracing", False)
+        return call
+
+    monkeypatch.setattr(captured_module, "capture", as_traced)
 
 
 def batch_of(sequence: TargetSequence, B: int) -> TargetSequence:
@@ -107,19 +119,25 @@ def test_a_step_with_an_active_bound_has_its_qp_solved_by_the_backend(walking, u
     assert solved == [0, 1] + [k for k in range(2, len(sequence)) if active[k] > 0] and len(solved) > 10
 
 
-def test_on_a_cpu_a_batch_solved_on_the_tree_steps_eagerly_and_a_smaller_one_is_replayed(walking, uncompiled,
-                                                                                        monkeypatch):
-    """On a CPU the captured step is slower than the eager one's tree elimination (BatchSetup.replays_faster)."""
+@pytest.mark.parametrize("narrow", [False, True])
+def test_a_batch_solved_on_the_tree_is_replayed_with_the_tree_and_gives_the_eager_states(walking, uncompiled,
+                                                                                        monkeypatch, narrow):
+    """The tree's elimination, level by level in fresh tensors, and its QP handed to the backend
+    where a bound is active (narrow limits)."""
     from torchik.method.structure import BatchSetup
 
     model, _, sequence = walking
+    if narrow:
+        model = load_model("human66")
+        model.upper = model.upper.clone()
+        model.upper[:] = 0.05
     monkeypatch.setattr(BatchSetup, "TREE_FROM", 4)
-    short = batch_of(TargetSequence(*(t[:5] for t in vars(sequence).values())), 4)
+    # more subjects than the kinematics composes by pointer jumping (compose.SMALL_BATCH): level by level
+    phases = batch_of(TargetSequence(*(t[:60] for t in vars(sequence).values())), 40)
     tracker = DynamicalIK(model, LINKS, dt=0.01, compile=True, backend="batched")
-    tree = tracker.run(short)
-    assert tracker.captured is None and not torch.isnan(tree.diagnostics["kinematics_time"]).any()
-    tracker.run(TargetSequence(*(t[:, :2] if t.dim() > 1 else t for t in vars(short).values())))
-    assert tracker.captured is not None  # 2 subjects: solved densely, replayed
+    eager_steps, replay = assert_same_run(model, phases, tracker=tracker, backend="batched")
+    assert tracker._batch.structured and eager_steps == [0, 1]
+    assert (replay.diagnostics["active_constraints"][2:] > 0).any() == narrow
 
 
 def test_a_dt_of_the_wrong_shape_is_refused_as_the_eager_step_refuses_it(walking, uncompiled):

@@ -20,6 +20,7 @@ def add_parser(subparsers) -> None:
         "bench", help="subject-steps per second, batched and per-subject loops (table and JSON)",
         description=bench.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="examples:\n  torchik bench\n  torchik bench --models human66 --batch 1024 --no-loops\n"
+               "  torchik bench --models human66 --batch 128 1024 --no-loops --compile\n"
                "  torchik bench --device cuda --batch 1024 65536 --json gpu.json\n"
                "  torchik bench --models human66 --batch 1024 --no-loops --profile")
     parser.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS)
@@ -29,6 +30,9 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--dtype", default="float64", choices=("float64", "float32"))
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
     parser.add_argument("--no-loops", action="store_true", help="skip the per-subject loops")
+    parser.add_argument("--compile", action="store_true",
+                        help="also each batch size's step captured and replayed compiled (TrackerSettings(compile=True)), "
+                             "after its eager one; the capture (up to minutes the first time on a machine) is not timed")
     parser.add_argument("--loop-steps", type=int, default=200, help="steps timed per loop (default 200)")
     parser.add_argument("--seconds", type=positive, default=2.0, help="time per batched measurement, at most (default 2)")
     parser.add_argument("--max-steps", type=int, default=50, help="steps per batched measurement, at most (default 50)")
@@ -51,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
         torch.set_num_threads(args.threads)
     dtype = getattr(torch, args.dtype)
     results = bench.run(args.models, args.batch, args.device, dtype, not args.no_loops, args.loop_steps, args.seconds,
-                  args.max_steps, progress=not args.quiet)
+                  args.max_steps, progress=not args.quiet, compiled=args.compile)
     on_cuda = torch.device(args.device).type == "cuda"
     device_name = torch.cuda.get_device_name(0) if on_cuda else platform.processor() or platform.machine()
     print(f"torchik bench: {args.dtype}, device {args.device} ({device_name}), {torch.get_num_threads()} CPU threads")

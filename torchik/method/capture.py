@@ -30,6 +30,16 @@ SMALL_CONTRACTION = 32  # matrix products contracting over at most this many ter
 LARGEST_EXPANSION = 1 << 22  # ... unless the elementwise product would hold more numbers than this
 
 
+_tracing = False
+
+
+def tracing() -> bool:
+    """Whether a function is being traced for capture now. Code that writes level by level into one
+    buffer, the fastest form eagerly, makes a tensor per level instead while traced: in the
+    captured graph every in-place write of a slice would copy the whole buffer."""
+    return _tracing
+
+
 class CaptureError(TorchikError):
     """The function could not be traced or compiled here (no C++ compiler, an operation TorchInductor
     cannot lower, ...): the message says why; the eager function still works."""
@@ -38,6 +48,7 @@ class CaptureError(TorchikError):
 def capture(fn: Callable[..., Sequence[torch.Tensor]], inputs: Sequence[torch.Tensor]) -> Callable[..., list]:
     """fn traced for the shapes of `inputs` and compiled; returns a function of tensors like them
     that returns fn's outputs as a list. Raises CaptureError when that cannot be done here."""
+    global _tracing
     try:
         from torch._inductor.compile_fx import compile_fx
         from torch.fx.experimental.proxy_tensor import make_fx
@@ -47,8 +58,12 @@ def capture(fn: Callable[..., Sequence[torch.Tensor]], inputs: Sequence[torch.Te
             # fake tensors: shapes and dtypes only; the constants fn closes over stay real. The small
             # products are expanded here, in the trace: given to compile_fx, a decomposition table
             # would keep the graph out of TorchInductor's cache (it cannot hash one)
-            graph = make_fx(fn, decomposition_table=_small_products(), tracing_mode="fake",
-                            _allow_non_fake_inputs=True)(*examples)
+            _tracing = True
+            try:
+                graph = make_fx(fn, decomposition_table=_small_products(), tracing_mode="fake",
+                                _allow_non_fake_inputs=True)(*examples)
+            finally:
+                _tracing = False
             # on CPU the C++ wrapper calls the kernels without Python between them; on CUDA, Triton
             # kernels launched one by one: not a CUDA graph, whose outputs the next replay would
             # overwrite while the tracker still holds them (the state, two steps of targets)

@@ -21,10 +21,9 @@ class TrackerSettings:
     ||nu||^2; limits: the joint limits' velocity bounds; backend: the QP solver, 'auto' (batched
     for a batch or on CUDA, else PIQP), 'piqp' or 'batched'; max_gap: a time step longer than this
     many nominal steps is a gap, after which the tracker restarts from the targets (a new segment);
-    compile: replay the usual step compiled (`captured.py`): fastest for small batches on long runs,
-    after a first capture of seconds (tens the first time on a machine); on a CPU a batch that the
-    batched backend solves on the joints' tree (from `BatchSetup.TREE_FROM` subjects) steps
-    eagerly, which is faster there (`BatchSetup.replays_faster`).
+    compile: replay the usual step compiled (`captured.py`): for one subject and for batches, the
+    faster step on long runs, after a first capture of seconds (a minute or two the first time on a
+    machine).
     """
 
     position_gain: float = 20.0

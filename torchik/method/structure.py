@@ -80,6 +80,11 @@ class BatchSetup:
     # Human66 on one core of this project's CPU), a dense Cholesky of B matrices less up to about
     # 96 subjects (Human66 at B = 8: 3-4 ms a step dense, 7-11 ms on the tree; equal at B = 96)
     TREE_FROM: ClassVar[int] = 96
+    # captured (settings.compile), the tree's elimination costs no time per level and is the faster
+    # solve from this size (Human66 at B = 64: 2.3 ms a step against 4.7 ms dense). At B = 1 it was
+    # 0.37 against 0.43 ms, but its first capture on a machine takes twice as long (66 against 35 s),
+    # which the test suite and a live session's start would pay
+    CAPTURED_TREE_FROM: ClassVar[int] = 32
 
     size: int
     target_shapes: tuple
@@ -88,16 +93,6 @@ class BatchSetup:
     stacked: bool
     structured: bool
     buffers: LinkKinematics | None
-
-    @property
-    def replays_faster(self) -> bool:
-        """Whether the captured step (`captured.py`) is faster than the eager one for this batch. Not on
-        a CPU where the batch solves on the tree: for Human66 at B = 1024 the captured step (its
-        dense Cholesky factorisation of B [N,N] matrices) took 3.6x the eager step's CPU time, after
-        two minutes of compiling; captured with the tree's elimination it still took 2.5x, as
-        TorchInductor's C++ copies the whole [n+1,3,3,B] accumulator at every level of the tree
-        (the in-place sums made functional). At B = 64 (dense both ways) it took 0.7x."""
-        return not (self.structured and self.base_bounds.lower.device.type == "cpu")
 
     @classmethod
     def build(cls, model: KinematicModel, structure: StepStructure, settings: TrackerSettings, backend: QPBackend,
@@ -114,6 +109,8 @@ class BatchSetup:
             # G of the coupled limits A s_dot <= h: the base's columns are zero
             linear_rows=None if A is None else torch.cat((A.new_zeros(A.shape[0], 6), A), dim=1).expand(B, -1, -1),
             stacked=stacked,
-            structured=structure.tree is not None and isinstance(backend, BatchedBackend) and B >= cls.TREE_FROM,
+            structured=structure.tree is not None and (
+                (settings.compile and B >= cls.CAPTURED_TREE_FROM) or
+                (isinstance(backend, BatchedBackend) and B >= cls.TREE_FROM)),
             buffers=None if structure.rotations_only else
             model.empty_output(rows, structure.selection, structure.task.position is not None, structure.task.position))

@@ -121,7 +121,7 @@ class DynamicalIK:
         self._batch = BatchSetup.build(self.model, self.structure, self.settings, self.backend, B)
         self._no_restart = torch.zeros(B, dtype=torch.bool, device=state.base_position.device)
         self._captured = None
-        if self.settings.compile and self._batch.replays_faster:
+        if self.settings.compile:
             if B not in self._captures:
                 self._captures[B] = CapturedStep(model, self.structure, self.settings, self._batch)
             self._captured = self._captures[B]
@@ -139,8 +139,7 @@ class DynamicalIK:
 
     @property
     def captured(self) -> CapturedStep | None:
-        """The captured step for the current batch size (with settings.compile, where it is the faster
-        step: `BatchSetup.replays_faster`; else None): its
+        """The captured step for the current batch size (with settings.compile; else None): its
         `compile_seconds` is how long the capture took (None before the first settled step), and
         `unavailable` is True where it could not be made here (the step then runs eagerly)."""
         return self._captured

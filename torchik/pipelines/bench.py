@@ -32,6 +32,7 @@ Results: a table on stdout and, with --json, a file.
 from __future__ import annotations
 
 import contextlib
+import math
 import time
 from dataclasses import dataclass
 
@@ -73,23 +74,28 @@ def _motion(model, batch: int, steps: int, seed: int = 0):
 
 
 def bench_batched(name: str, batch: int, device: str, dtype, min_seconds: float, max_steps: int,
-                  warmup: int = 5) -> Measurement:
+                  warmup: int = 5, compiled: bool = False) -> Measurement:
     """The tracker's whole step for `batch` subjects at once; timed over up to `max_steps` steps
-    or `min_seconds`, whichever comes first, after `warmup` steps."""
+    or `min_seconds`, whichever comes first, after `warmup` steps. compiled: the step captured and
+    replayed (`TrackerSettings(compile=True)`; captured during the warm-up, its seconds reported).
+    A replayed step's QP is its unconstrained minimiser, one factorisation: one iteration; where a
+    bound is active the backend's iterations are added to it."""
     # enough steps for min_seconds at a first guess of the speed (1e5 subject-steps/s on a CPU, 3e6 on
     # a GPU), at most max_steps: every step's targets are made before the timing starts
     guess = 3e6 if torch.device(device).type == "cuda" else 1e5
     max_steps = max(3, min(max_steps, int(guess * min_seconds / batch) + 1))
-    tracker, sequence = prepared_tracker(name, batch, device, dtype, warmup + max_steps, warmup)
+    tracker, sequence = prepared_tracker(name, batch, device, dtype, warmup + max_steps, warmup, compiled)
     solver = tracker.backend
     assert isinstance(solver, BatchedBackend)  # asked for: its iterations are measured
     _synchronize(device)
     iterations, rescued, active, unsolved, steps = 0, 0, 0.0, 0, 0
     start = time.perf_counter()
     while steps < max_steps:
+        solver.iterations = solver.rescued = 0  # a replayed usual step does not call the backend
         _, diagnostics = tracker.step(sequence[warmup + steps])
         steps += 1
-        iterations += solver.iterations
+        replayed = compiled and math.isnan(diagnostics.kinematics_time)
+        iterations += solver.iterations + replayed
         rescued += solver.rescued
         active += float(diagnostics.active_constraints.double().mean())
         unsolved += int((~diagnostics.solved).sum())
@@ -97,14 +103,16 @@ def bench_batched(name: str, batch: int, device: str, dtype, min_seconds: float,
             break
     _synchronize(device)
     seconds = time.perf_counter() - start
-    return Measurement(name, "torchik batched", batch, steps, seconds, batch * steps / seconds, active / steps,
-                       iterations / steps, rescued / (batch * steps), unsolved / (batch * steps),
-                       float(diagnostics.mnte.max()))
+    captured = tracker.captured
+    return Measurement(name, "torchik batched compiled" if compiled else "torchik batched", batch, steps, seconds,
+                       batch * steps / seconds, active / steps, iterations / steps, rescued / (batch * steps),
+                       unsolved / (batch * steps), float(diagnostics.mnte.max()),
+                       compile_seconds=None if captured is None else captured.compile_seconds)
 
 
-def prepared_tracker(name: str, batch: int, device: str, dtype, steps: int, warmup: int):
-    """The batched tracker of model `name` for `batch` subjects of the walking motion, after
-    `warmup` of its `steps` steps, and the motion's targets."""
+def prepared_tracker(name: str, batch: int, device: str, dtype, steps: int, warmup: int, compiled: bool = False):
+    """The batched tracker of model `name` for `batch` subjects of the walking motion (its step
+    captured and replayed if `compiled`), after `warmup` of its `steps` steps, and the motion's targets."""
     from ..method.models import TRACKED_LINKS, load_model
     from ..method.tracker import DynamicalIK
 
@@ -112,7 +120,7 @@ def prepared_tracker(name: str, batch: int, device: str, dtype, steps: int, warm
     motion = _motion(model, batch, steps)
     sequence = _targets(model, motion, links, device)
     tracker = DynamicalIK(model, links, position_gain=GAIN, orientation_gain=GAIN, dt=1 / RATE, damping=DAMPING,
-                          backend="batched")
+                          backend="batched", compile=compiled)
     state = motion.state(0)
     tracker.reset(type(state)(*(x.to(device) for x in vars(state).values())), batch=batch)
     for k in range(warmup):
@@ -301,11 +309,14 @@ def bench_pinocchio_loop(name: str, solver: str, steps: int, warmup: int = 10) -
 
 
 def run(models=MODELS, batches=BATCHES, device: str = "cpu", dtype=torch.float64, loops: bool = True,
-        loop_steps: int = 200, min_seconds: float = 2.0, max_steps: int = 50, progress: bool = True) -> list[Measurement]:
-    """Every measurement of the benchmark, in the order of the table."""
+        loop_steps: int = 200, min_seconds: float = 2.0, max_steps: int = 50, progress: bool = True,
+        compiled: bool = False) -> list[Measurement]:
+    """Every measurement of the benchmark, in the order of the table (with `compiled`, each batch
+    size's captured step after its eager one)."""
     import qpsolvers
 
-    plan = [(name, "batched", B) for name in models for B in batches]
+    batched = ("batched", "batched compiled") if compiled else ("batched",)
+    plan = [(name, kind, B) for name in models for B in batches for kind in batched]
     if loops:  # before any measurement: a missing library is said at once
         optional("pinocchio", "bench", "torchik bench's per-subject loops (or --no-loops)")
         plan += [(name, loop, 1) for name in models for loop in LOOPS
@@ -320,8 +331,9 @@ def run(models=MODELS, batches=BATCHES, device: str = "cpu", dtype=torch.float64
         if bar is not None:
             bar.set_postfix_str(f"{name} {pipeline} B={B}")
             bar.update()
-        if pipeline == "batched":
-            results.append(bench_batched(name, B, device, dtype, min_seconds, max_steps))
+        if pipeline.startswith("batched"):
+            results.append(bench_batched(name, B, device, dtype, min_seconds, max_steps,
+                                         compiled=pipeline == "batched compiled"))
         elif pipeline.startswith("torchik"):
             with _threads(1):
                 results.append(bench_torchik_loop(name, loop_steps, compiled=pipeline == "torchik compiled"))
@@ -337,7 +349,7 @@ def table(results: list[Measurement]) -> str:
     """The measurements as a table: throughput, its ratio to the best peer loop (pinocchio's, assembled
     from existing libraries), a step's mean, median and 99th percentile (loops), and one line per
     model comparing torchik's compiled step with pinocchio + daqp's, median to median."""
-    lines = [f"{'model':8s} {'pipeline':16s} {'B':>6s} {'subject-steps/s':>16s} {'vs best peer':>12s} "
+    lines = [f"{'model':8s} {'pipeline':24s} {'B':>6s} {'subject-steps/s':>16s} {'vs best peer':>12s} "
              f"{'ms/step':>8s} {'p50 ms':>7s} {'p99 ms':>7s} {'active/subj':>11s} {'iters':>6s} {'rescued':>8s} "
              f"{'final MNTE':>10s}"]
     best: dict[str, float] = {}
@@ -347,10 +359,14 @@ def table(results: list[Measurement]) -> str:
     fmt = lambda v, f: "-" if v is None else format(v, f)  # noqa: E731
     for r in results:
         ratio = f"{r.subject_steps_per_second / best[r.model]:.1f}x" if r.model in best else "-"
-        lines.append(f"{r.model:8s} {r.pipeline:16s} {r.batch:>6d} {r.subject_steps_per_second:>16,.0f} {ratio:>12s} "
+        lines.append(f"{r.model:8s} {r.pipeline:24s} {r.batch:>6d} {r.subject_steps_per_second:>16,.0f} {ratio:>12s} "
                      f"{1e3 * r.seconds / r.steps:>8.2f} {fmt(r.median_step_ms, '.3f'):>7s} {fmt(r.p99_step_ms, '.3f'):>7s} "
                      f"{fmt(r.active_constraints_per_subject, '.2f'):>11s} {fmt(r.iterations_mean, '.2f'):>6s} "
                      f"{fmt(r.rescued_fraction, '.1%'):>8s} {fmt(r.final_mnte, '.1e'):>10s}")
+    captures = [f"{r.model} B={r.batch} {fmt(r.compile_seconds, '.1f')} s" for r in results
+                if r.pipeline == "torchik batched compiled"]
+    if captures:
+        lines.append("batched compiled, the capture's time (not timed): " + ", ".join(captures))
     by = {(r.model, r.pipeline): r for r in results}
     for model in dict.fromkeys(r.model for r in results):
         ours, peer = by.get((model, "torchik compiled")), by.get((model, "pinocchio+daqp"))

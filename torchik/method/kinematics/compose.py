@@ -9,6 +9,7 @@ from __future__ import annotations
 import torch
 
 from .. import so3
+from ..capture import tracing
 from .selection import LinkKinematics, LinkSelection
 from .tensors import TreeTensors
 
@@ -56,18 +57,28 @@ def frame_poses(t: TreeTensors, p_B, R_B, s) -> tuple[torch.Tensor, torch.Tensor
     R_base = R_B.permute(1, 2, 0)  # [3,3,B]
     if B <= SMALL_BATCH and t.jumps and not rotations_only:
         return compose_by_jumping(t, R_local, p_local, R_base, p_B.T)
-    # the base frame's offset is the identity and it has no joint, so its pose is the base pose
-    R = torch.empty_like(R_local)
-    p = None if rotations_only else torch.empty_like(p_local)
-    R[0] = R_base
-    if p is not None:
-        p[0] = p_B.T
+    # the base frame's offset is the identity and it has no joint, so its pose is the base pose.
+    # Each level written into one [F,...] tensor; while the step is traced for capture, a tensor
+    # per level, concatenated at the end (`capture.tracing`)
+    R_level, p_level = R_base[None], None if rotations_only else p_B.T[None]
+    R_levels, p_levels = [R_level], [p_level]
+    buffers = not tracing()
+    R = torch.empty_like(R_local) if buffers else None
+    p = torch.empty_like(p_local) if buffers and not rotations_only else None
     for start, stop, parents in t.levels:  # one step per tree level, not per link
-        R_parent = R.index_select(0, parents)
-        matmul_soa(R_parent, R_local[start:stop], out=R[start:stop])
+        R_parent = R_level.index_select(0, parents)
+        if p_level is not None:
+            p_level = torch.add(p_level.index_select(0, parents), matvec_soa(R_parent, p_local[start:stop]),
+                                out=None if p is None else p[start:stop])
+            p_levels.append(p_level)
+        R_level = matmul_soa(R_parent, R_local[start:stop], out=None if R is None else R[start:stop])
+        R_levels.append(R_level)
+    if R is not None:  # the base frame's row, which the levels do not write
+        R[0] = R_base
         if p is not None:
-            torch.add(p.index_select(0, parents), matvec_soa(R_parent, p_local[start:stop]), out=p[start:stop])
-    return R, p
+            p[0] = p_B.T
+        return R, p
+    return torch.cat(R_levels), None if rotations_only else torch.cat([x for x in p_levels if x is not None])
 
 
 def compose_by_jumping(t: TreeTensors, R_local, p_local, R_base, p_base):

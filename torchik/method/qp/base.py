@@ -85,13 +85,17 @@ def unconstrained_if_feasible(problem: QPProblem) -> tuple[torch.Tensor, torch.T
     (strictly, no tolerance) is the constrained optimum too; a solver is needed only elsewhere.
     Returns x [B,N] and feasible [B] bool (False also where H is not numerically positive definite).
     """
-    L, info = torch.linalg.cholesky_ex(problem.dense_hessian)
-    # two triangular solves: cholesky_solve does the same with copies and checks that cost, for
-    # one subject, twice as much again
-    x = torch.linalg.solve_triangular(L, -problem.g.unsqueeze(-1), upper=False)
-    x = torch.linalg.solve_triangular(L.transpose(-1, -2), x, upper=True).squeeze(-1)
+    if problem.tree is not None:
+        factor = problem.tree.factor(torch.ones_like(problem.g, dtype=torch.bool))
+        x, positive = factor.solve(-problem.g.unsqueeze(-1)).squeeze(-1), factor.positive
+    else:
+        L, info = torch.linalg.cholesky_ex(problem.dense_hessian)
+        # two triangular solves: cholesky_solve does the same with copies and checks that cost, for
+        # one subject, twice as much again
+        x = torch.linalg.solve_triangular(L, -problem.g.unsqueeze(-1), upper=False)
+        x, positive = torch.linalg.solve_triangular(L.transpose(-1, -2), x, upper=True).squeeze(-1), info == 0
     # within every bound, and finite: Inf - Inf and NaN are not 0
-    feasible = (info == 0) & (x.clamp(problem.lb, problem.ub) - x == 0).all(-1)
+    feasible = positive & (x.clamp(problem.lb, problem.ub) - x == 0).all(-1)
     if (rows := problem.rows) is not None:
         G, h = rows
         feasible &= (row_values(G, x) <= h).all(-1)

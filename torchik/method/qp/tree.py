@@ -34,12 +34,19 @@ class JointTree:
     """The joints' tree compiled for a model and its orientation targets.
 
     order: [n] the joints leaves first, one tree level (height) after another (node_order [n+1]: the
-    base after them); position: [n] where
-    each joint is in that order; spans: per level (start, stop, parents): its joints are order[start:stop]
-    and their parents' positions in the order are parents [m] (n: the base). In this order a level's
-    joints are one contiguous slice of every per-joint tensor, so the elimination reads them without
-    gathering; attach: [n_o, n+1] 1 where target t's angular velocity is that of joint j's frame (column n:
-    the base); descendants: [n+1, n] 1 where joint k lies on the path to j (column of the base: all
+    base after them); position: [n] where each joint is in that order; levels: per level (start,
+    stop): its joints are order[start:stop] (level L = len(levels), the base, stands for node n).
+    Each level's work reads and writes only its own per-level tensors, never a whole [n,...]
+    accumulator: written in place, such an accumulator is copied whole at every level once the step
+    is captured and made functional (`captured.py`). Eagerly the per-level factorisation is faster
+    too (Human66 at B = 1024, one thread: 9 against 20 ms), its solve a little slower (7-10 against
+    6-7 ms).
+    up[h]: where level h's sum of its children's contributions comes from, as (child level, the
+    child rows that feed level h or None for all, the level-h rows they add to or None for the same
+    rows); down[h]: (the levels holding level h's parents, each with its rows) and the permutation
+    that puts their concatenation in level h's order (None where it is already).
+    attach: [n_o, n+1] 1 where target t's angular velocity is that of joint j's frame (column n:
+    the base); ancestors: [n+1, n] 1 where joint k lies on the path to j (column of the base: all
     zero), for H's dense form.
     """
 
@@ -47,7 +54,9 @@ class JointTree:
     order: torch.Tensor
     node_order: torch.Tensor
     position: torch.Tensor
-    spans: tuple[tuple[int, int, torch.Tensor], ...]
+    levels: tuple[tuple[int, int], ...]
+    up: tuple[tuple[tuple[int, torch.Tensor | None, torch.Tensor | None], ...], ...]
+    down: tuple[tuple[tuple[tuple[int, torch.Tensor | None], ...], torch.Tensor | None], ...]
     attach: torch.Tensor
     ancestors: torch.Tensor
 
@@ -61,12 +70,12 @@ class JointTree:
                 height[parents[j]] = max(height[parents[j]], height[j] + 1)
         long: dict[str, Any] = dict(dtype=torch.long, device=model.device)
         order = sorted(range(n), key=lambda j: (height[j], j))
-        position = {j: i for i, j in enumerate(order)} | {n: n}
-        spans, start = [], 0
+        levels, start = [], 0
         for h in range(max(height) + 1 if n else 0):
-            members = [j for j in order if height[j] == h]
-            spans.append((start, start + len(members), torch.tensor([position[parents[j]] for j in members], **long)))
-            start += len(members)
+            size = sum(1 for j in order if height[j] == h)
+            levels.append((start, start + size))
+            start += size
+        up, down = _links_between_levels(order, parents, levels, n, long)
         above = torch.zeros(n + 1, n, dtype=model.dtype, device=model.device)
         for j in range(n):
             k = j
@@ -84,8 +93,9 @@ class JointTree:
             node = torch.full((mask.shape[0],), n, dtype=torch.long, device=model.device)
         attach = torch.zeros(mask.shape[0], n + 1, dtype=model.dtype, device=model.device)
         attach[torch.arange(mask.shape[0]), node] = 1.0
+        position = {j: i for i, j in enumerate(order)}
         return cls(n, torch.tensor(order, **long), torch.tensor(order + [n], **long),
-                   torch.tensor([position[j] for j in range(n)], **long), tuple(spans), attach, above)
+                   torch.tensor([position[j] for j in range(n)], **long), tuple(levels), up, down, attach, above)
 
 
 def _depth(parents, j, n) -> int:
@@ -93,6 +103,35 @@ def _depth(parents, j, n) -> int:
     while j < n:
         j, d = parents[j], d + 1
     return d
+
+
+def _links_between_levels(order, parents, levels, n, long):
+    """`JointTree.up` and `.down` (build time only): for each level, which rows of which other levels
+    its children and its parents are."""
+    L = len(levels)
+    where = {n: (L, 0)}  # node -> (level, row); the base is level L's only row
+    for h, (start, stop) in enumerate(levels):
+        for row, j in enumerate(order[start:stop]):
+            where[j] = (h, row)
+    size = [stop - start for start, stop in levels] + [1]
+    rows_or_all = lambda rows, m: None if rows == list(range(m)) else torch.tensor(rows, **long)  # noqa: E731
+    up: list[list] = [[] for _ in range(L + 1)]
+    down = []
+    for h, (start, stop) in enumerate(levels):
+        groups: dict[int, list[tuple[int, int]]] = {}
+        for row, j in enumerate(order[start:stop]):
+            groups.setdefault(where[parents[j]][0], []).append((row, where[parents[j]][1]))
+        for h_parent, pairs in groups.items():
+            child_rows, parent_rows = [r for r, _ in pairs], [p for _, p in pairs]
+            same = child_rows == parent_rows == list(range(size[h_parent])) and size[h] == size[h_parent]
+            up[h_parent].append((h, None if same else rows_or_all(child_rows, size[h]),
+                                 None if same else torch.tensor(parent_rows, **long)))
+        arrival = [r for pairs in groups.values() for r, _ in pairs]  # level h's rows as concatenated
+        permutation = None if arrival == list(range(size[h])) else \
+            torch.tensor(sorted(range(len(arrival)), key=arrival.__getitem__), **long)
+        down.append((tuple((h_parent, rows_or_all([p for _, p in pairs], size[h_parent]))
+                           for h_parent, pairs in groups.items()), permutation))
+    return tuple(tuple(u) for u in up), tuple(down)
 
 
 @dataclass(frozen=True)
@@ -171,8 +210,8 @@ class TreeHessian:
 class TreeFactor:
     """H restricted to the free variables, factorised leaves first (see the module's docstring).
 
-    Internally batch-last ([joint, ..., B]) and in the tree's level order (`JointTree.order`):
-    every level's work is then a few elementwise operations on one contiguous slice of rows."""
+    Internally batch-last ([joint, ..., B]) and one tensor per tree level (`JointTree.levels`):
+    every level's work is a few elementwise operations on its own rows."""
 
     def __init__(self, hessian: TreeHessian, free: torch.Tensor, extra: torch.Tensor | None):
         tree = hessian.tree
@@ -183,30 +222,39 @@ class TreeFactor:
         diagonal = torch.full((6 + n, B), hessian.damping, dtype=dtype, device=free.device)
         if extra is not None:
             diagonal.add_(extra.T)  # in place: the sum would take extra.T's transposed layout
-        # per joint, in level order (index_select writes contiguous rows)
+        # per joint, in level order
         axes = hessian.axes.index_select(1, tree.order).permute(1, 2, 0).contiguous()  # [n,3,B]
         joint_free = self.free[6:].index_select(0, tree.order)
         joint_diagonal = diagonal[6:].index_select(0, tree.order)
         weight = hessian.node_weight.T.index_select(0, tree.node_order)  # [n+1,B], the base last
-        S = weight[:, None, None, :] * torch.eye(3, dtype=dtype, device=free.device)[:, :, None]  # [n+1,3,3,B]
-        self.gain = torch.empty(n, B, dtype=dtype, device=free.device)  # 0: held, not eliminated
-        self.u = torch.empty(n, 3, B, dtype=dtype, device=free.device)  # S_j a_j
-        self.axes = axes
-        for start, stop, parents in tree.spans:
-            a, S_j, u = axes[start:stop], S[start:stop], self.u[start:stop]  # [m,3,B], [m,3,3,B], [m,3,B]
-            column = S_j.unbind(2)  # S_j's columns [m,3,B]: u = S_j a without an [m,3,3,B] product
-            torch.mul(column[0], a[:, 0:1], out=u).addcmul_(column[1], a[:, 1:2]).addcmul_(column[2], a[:, 2:3])
-            gain = torch.div(joint_free[start:stop], (a * u).sum(1).add_(joint_diagonal[start:stop]),
-                             out=self.gain[start:stop])
-            S.index_add_(0, parents, torch.addcmul(S_j, (gain[:, None] * u)[:, :, None], u[:, None], value=-1.0))
+        eye = torch.eye(3, dtype=dtype, device=free.device)[:, :, None]
+        self.axes = [axes[start:stop] for start, stop in tree.levels]  # [m,3,B] per level
+        self.gain: list[torch.Tensor] = []  # [m,B] per level; 0: held, not eliminated
+        self.u: list[torch.Tensor] = []  # [m,3,B] per level: S_j a_j
+        passed: list[torch.Tensor] = []  # [m,3,3,B] per level: P_j, what each joint passes to its parent
+        for h, (start, stop) in enumerate(tree.levels + ((n, n + 1),)):
+            S = _gathered(weight[start:stop, None, None, :] * eye, passed, tree.up[h], stop - start)  # [m,3,3,B]
+            assert S is not None  # the targets' weights start every level's sum
+            if h == len(tree.levels):
+                break
+            a = self.axes[h]
+            column = S.unbind(2)  # S_j's columns [m,3,B]: u = S_j a without an [m,3,3,B] product
+            u = (column[0] * a[:, 0:1]).addcmul_(column[1], a[:, 1:2]).addcmul_(column[2], a[:, 2:3])
+            gain = joint_free[start:stop] / (a * u).sum(1).add_(joint_diagonal[start:stop])
+            passed.append(torch.addcmul(S, (gain[:, None] * u)[:, :, None], u[:, None], value=-1.0))
+            self.gain.append(gain)
+            self.u.append(u)
         # the base: omega_B's 3x3 block and p_dot_B's diagonal, held components replaced by identity
         f = self.free[3:6].T  # [B,3]
-        self.base_weight = S[n].permute(2, 0, 1)  # [B,3,3]
+        assert S is not None  # the last level's: the base's
+        self.base_weight = S[0].permute(2, 0, 1)  # [B,3,3]
         base = self.base_weight * (f[:, :, None] * f[:, None, :]) + torch.diag_embed(f * diagonal[3:6].T + (1 - f))
         # a Cholesky factor, not an inverse: this block can be nearly singular (targets that the
         # joints alone can match leave the base only the damping), and only a factorisation keeps
         # the solve backward stable there
-        self.base_factor = torch.linalg.cholesky_ex(base)[0]
+        self.base_factor, info = torch.linalg.cholesky_ex(base)
+        # [B]: the factorisation exists (the joints' pivots are positive with a positive damping)
+        self.positive = info == 0
         self.linear = (hessian.position_weight[None, :] + diagonal[:3])  # [3,B]
 
     def select(self, subjects: torch.Tensor) -> "TreeFactor":
@@ -214,52 +262,73 @@ class TreeFactor:
         last = lambda t: t.index_select(-1, subjects)  # noqa: E731  (batch-last tensors)
         picked = object.__new__(TreeFactor)
         picked.tree = self.tree
-        picked.free, picked.linear, picked.gain, picked.u, picked.axes = (
-            last(self.free), last(self.linear), last(self.gain), last(self.u), last(self.axes))
+        picked.free, picked.linear = last(self.free), last(self.linear)
+        picked.gain, picked.u, picked.axes = ([last(t) for t in level] for level in (self.gain, self.u, self.axes))
         picked.base_weight = self.base_weight.index_select(0, subjects)
         picked.base_factor = self.base_factor.index_select(0, subjects)
+        picked.positive = self.positive.index_select(0, subjects)
         return picked
 
     def solve(self, rhs: torch.Tensor, held: torch.Tensor | None = None) -> torch.Tensor:
         """x with (H x)_i = rhs_i on the free variables and x_i = held_i on the others.
         rhs, held: [B,N,k] (held None: zeros) -> x [B,N,k]."""
         tree = self.tree
-        B, N, k = rhs.shape
-        n = N - 6
+        L = len(tree.levels)
         r = rhs.permute(1, 2, 0)  # [N,k,B]
         c = None if held is None else held.permute(1, 2, 0) * (1 - self.free[:, None])
-        # leaves to root, in level order: y_j, the linear term each subtree passes to its parent's frame
+        # leaves to root: each level's values and y_j, the linear term each subtree passes to its parent's frame
         r_joint = r[6:].index_select(0, tree.order)
-        values = torch.empty_like(r_joint)
         c_joint = None if c is None else c[6:].index_select(0, tree.order)
-        y = r.new_zeros(n + 1, 3, k, B)
-        a3, u3, gain2 = self.axes[:, :, None], self.u[:, :, None], self.gain[:, None]  # [n,3,1,B], [n,3,1,B], [n,1,B]
-        for start, stop, parents in tree.spans:
-            y_j = y[start:stop]  # [m,3,k,B]
-            beta = (a3[start:stop] * y_j).sum(1).add_(r_joint[start:stop])  # [m,k,B]
-            value = torch.mul(gain2[start:stop], beta, out=values[start:stop])
-            if c_joint is not None:
-                value.add_(c_joint[start:stop])
-            y.index_add_(0, parents, torch.addcmul(y_j, u3[start:stop], value[:, None], value=-1.0))
+        values: list[torch.Tensor] = []  # [m,k,B] per level
+        passed: list[torch.Tensor] = []  # [m,3,k,B] per level
+        for h, (start, stop) in enumerate(tree.levels):
+            y = _gathered(None, passed, tree.up[h], stop - start)  # [m,3,k,B], None at the leaves
+            a3, u3, gain2 = self.axes[h][:, :, None], self.u[h][:, :, None], self.gain[h][:, None]
+            beta = r_joint[start:stop] if y is None else (a3 * y).sum(1).add_(r_joint[start:stop])  # [m,k,B]
+            value = gain2 * beta if c_joint is None else torch.addcmul(c_joint[start:stop], gain2, beta)
+            passed.append(-u3 * value[:, None] if y is None else torch.addcmul(y, u3, value[:, None], value=-1.0))
+            values.append(value)
+        y_base = _gathered(None, passed, tree.up[L], 1)
         f = self.free[3:6].T[..., None]  # [B,3,1]
-        c_B = None if c is None else c[3:6].permute(2, 0, 1)  # [B,3,k]
-        omega_rhs = r[3:6].permute(2, 0, 1) + y[n].permute(2, 0, 1)
-        if c_B is not None:
+        omega_rhs = r[3:6].permute(2, 0, 1) + (0 if y_base is None else y_base[0].permute(2, 0, 1))
+        if c is not None:
+            c_B = c[3:6].permute(2, 0, 1)  # [B,3,k]
             omega_rhs = f * (omega_rhs - self.base_weight @ c_B) + c_B
         else:
             omega_rhs = f * omega_rhs
-        omega_B = torch.cholesky_solve(omega_rhs, self.base_factor)
-        x = r.new_empty(B, N, k).permute(1, 2, 0)  # [N,k,B] over a contiguous [B,N,k]: what the caller reads
-        x[:3] = self.free[:3, None] * r[:3] / self.linear[:, None] + (0 if c is None else c[:3])
-        x[3:6] = omega_B.permute(1, 2, 0)
+        omega_B = torch.cholesky_solve(omega_rhs, self.base_factor).permute(1, 2, 0)  # [3,k,B]
+        linear = self.free[:3, None] * r[:3] / self.linear[:, None] + (0 if c is None else c[:3])
         # root to leaves: each joint's rate from its parent frame's angular velocity
-        omega = r.new_empty(n + 1, 3, k, B)
-        omega[n] = x[3:6]
-        rates = torch.empty_like(values)
-        for start, stop, parents in reversed(tree.spans):
-            omega_p = omega.index_select(0, parents)
-            rate = torch.addcmul(values[start:stop], gain2[start:stop], (u3[start:stop] * omega_p).sum(1), value=-1.0,
-                                 out=rates[start:stop])
-            torch.addcmul(omega_p, a3[start:stop], rate[:, None], out=omega[start:stop])
-        x[6:] = rates.index_select(0, tree.position)
-        return x.permute(2, 0, 1)
+        omega: list[torch.Tensor | None] = [None] * L + [omega_B[None]]  # [m,3,k,B] per level, the base last
+        rates: list[torch.Tensor] = [values[0]] * L  # placeholders, each level's replaced below
+        for h in reversed(range(L)):
+            sources, permutation = tree.down[h]
+            parts = [_rows(omega[level], rows) for level, rows in sources]
+            omega_p = parts[0] if len(parts) == 1 else torch.cat(parts)
+            if permutation is not None:
+                omega_p = omega_p.index_select(0, permutation)
+            u3, gain2 = self.u[h][:, :, None], self.gain[h][:, None]
+            rates[h] = torch.addcmul(values[h], gain2, (u3 * omega_p).sum(1), value=-1.0)
+            omega[h] = torch.addcmul(omega_p, self.axes[h][:, :, None], rates[h][:, None])
+        joints = torch.cat(rates).index_select(0, tree.position) if L else r[6:]
+        return torch.cat((linear, omega_B, joints)).permute(2, 0, 1).contiguous()
+
+
+def _rows(t: torch.Tensor | None, rows: torch.Tensor | None) -> torch.Tensor:
+    assert t is not None  # the levels above are done first
+    return t if rows is None else t.index_select(0, rows)
+
+
+def _gathered(start: torch.Tensor | None, passed: list[torch.Tensor], sources, size: int) -> torch.Tensor | None:
+    """`start` plus what the levels below pass to this level's `size` rows: sources as in `JointTree.up`
+    (child level, its rows that feed this level or None for all, this level's rows or None for the
+    same rows). None where both are nothing (a level of leaves with no start)."""
+    total = start
+    for child, rows, into in sources:
+        part = _rows(passed[child], rows)
+        if into is None:
+            total = part if total is None else total + part
+        else:
+            base = part.new_zeros((size,) + part.shape[1:]) if total is None else total
+            total = base.index_add(0, into, part)
+    return total
