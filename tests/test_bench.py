@@ -33,3 +33,18 @@ def test_every_pipeline_runs_and_tracks_the_motion(monkeypatch):
 def test_bad_batch_size_is_refused_with_exit_code_2(capsys):
     assert main(["bench", "--batch", "0", "--quiet"]) == 2
     assert "batch sizes must be positive" in capsys.readouterr().err
+
+
+def test_with_compile_each_batch_size_has_a_captured_row_after_its_eager_one(monkeypatch):
+    """--compile: the captured step (uncompiled here) beside the eager one, both tracking the motion,
+    a replayed step counted as one iteration."""
+    monkeypatch.setattr(captured, "capture", lambda fn, inputs: fn)
+    results = run(models=("human48",), batches=(3, 40), loops=False, min_seconds=0.5, max_steps=8, progress=False,
+                  compiled=True)
+    assert [(r.pipeline, r.batch) for r in results] == [
+        ("torchik batched", 3), ("torchik batched compiled", 3), ("torchik batched", 40), ("torchik batched compiled", 40)]
+    for r in results:
+        assert r.final_mnte < 1e-4 and r.unsolved_fraction == 0.0, (r.pipeline, r.batch)
+    for r in results[1::2]:
+        assert r.compile_seconds is not None and r.iterations_mean == 1.0  # every timed step replayed, no bound active
+    assert "batched compiled, the capture's time" in table(results)
