@@ -22,11 +22,11 @@ over a walking run).
 
 Opt-in, not automatic: the first capture of a model's step on a machine compiles C++ for tens of
 seconds (later ones load it from TorchInductor's cache in seconds), which pays off on long runs
-and live tracking, not in a test or a demo of a few hundred steps. A batch that the batched backend
-solves on the joints' tree (`BatchSetup.TREE_FROM`) has the tree's elimination captured too, each
-tree level's tensors made afresh rather than written into one buffer (`capture.tracing`): for
-Human66 at B = 1024 on this project's 2-core CPU, 17.5 ms a step against the eager 41 ms (15 ms at
-B = 128, 14.4 ms eagerly and 3.6 ms captured). It is made at the first settled
+and live tracking, not in a test or a demo of a few hundred steps. From
+`BatchSetup.CAPTURED_TREE_FROM` subjects it solves on the joints' tree, each tree level's tensors
+made afresh rather than written into one buffer (`capture.tracing`): for Human66 on this
+project's 2-core CPU, 12-18 ms a step at B = 1024 against the eager 28-41 ms, and 3.6 against
+14.4 ms at B = 128. It is made at the first settled
 step of a batch size and kept for the tracker's later runs of that size, with the model's tensors
 as they are then.
 """

@@ -66,7 +66,7 @@ def _hat(a: np.ndarray) -> np.ndarray:
 class TreeTensors:
     """Everything a call reads, in one dtype on one device. F frames, n joints, N links.
 
-    levels: (start, stop, parents [level size], rows of the level above) per depth; jumps: [F+1] per pointer-jumping round;
+    levels: (start, stop, parents [level size] as rows of the level above) per depth; jumps: [F+1] per pointer-jumping round;
     homogeneous_template [F+1,4,4] (bottom rows, and the world's identity); frame_joint [F] (0 for
     the base) and frame_is_joint [F,1] (0 for the base); joint_frame [n]; joint_axes [n,3,1] and
     joint_axes_row [n,1,3] each joint's axis in its frame; link_anchor [N]; ancestor [F,n].
