@@ -119,21 +119,25 @@ def test_a_step_with_an_active_bound_has_its_qp_solved_by_the_backend(walking, u
     assert solved == [0, 1] + [k for k in range(2, len(sequence)) if active[k] > 0] and len(solved) > 10
 
 
+CUDA = pytest.param("cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device"))
+
+
+@pytest.mark.parametrize("device", ["cpu", CUDA])
 @pytest.mark.parametrize("narrow", [False, True])
 def test_a_batch_solved_on_the_tree_is_replayed_with_the_tree_and_gives_the_eager_states(walking, uncompiled,
-                                                                                        monkeypatch, narrow):
+                                                                                        monkeypatch, narrow, device):
     """The tree's elimination, level by level in fresh tensors, and its QP handed to the backend
     where a bound is active (narrow limits)."""
     from torchik.method.structure import BatchSetup
 
-    model, _, sequence = walking
+    _, _, sequence = walking
+    model = load_model("human66", device=device)
     if narrow:
-        model = load_model("human66")
         model.upper = model.upper.clone()
         model.upper[:] = 0.05
     monkeypatch.setattr(BatchSetup, "TREE_FROM", 4)
     # more subjects than the kinematics composes by pointer jumping (compose.SMALL_BATCH): level by level
-    phases = batch_of(TargetSequence(*(t[:60] for t in vars(sequence).values())), 40)
+    phases = batch_of(TargetSequence(*(t[:60].to(device) for t in vars(sequence).values())), 40)
     tracker = DynamicalIK(model, LINKS, dt=0.01, compile=True, backend="batched")
     eager_steps, replay = assert_same_run(model, phases, tracker=tracker, backend="batched")
     assert tracker._batch.structured and eager_steps == [0, 1]
