@@ -52,8 +52,9 @@ def add_parser(subparsers) -> None:
                    help=f"K for positions and orientations, 1/s (default {TrackerSettings.position_gain:g})")
     p.add_argument("--backend", default=TrackerSettings.backend, choices=("auto", *BACKENDS))
     p.add_argument("--compile", action="store_true", help="replay the batch's usual step compiled: several "
-                   "times faster per step at one character, after a capture at the third step of each batch size "
-                   "(seconds, tens the first time on a machine; the samples meanwhile are skipped, and counted)")
+                   "times faster per step (one character, or many: from 32 on the joints' tree), after a capture at "
+                   "the third step of each batch size (seconds; one to two minutes the first time on a machine; the "
+                   "samples meanwhile are skipped, and counted)")
     p.add_argument("--device", default="cpu", help="torch device: cpu (default), cuda or cuda:N")
     p.add_argument("--retarget", choices=("icub",), help="also track iCub from the stream (human_to_icub map) and "
                    "publish and write iCub's joints instead of the human model's")

@@ -82,8 +82,9 @@ def add_parser(subparsers) -> None:
     track.add_argument("--backend", default=TrackerSettings.backend, choices=("auto", *BACKENDS),
                        help="QP solver: PIQP per subject, batched in torch, or auto (batched for batches, default)")
     track.add_argument("--compile", action="store_true",
-                       help="replay the usual step compiled: several times faster per step, after a capture of seconds "
-                            "(tens the first time on a machine): for long recordings")
+                       help="replay the usual step compiled: several times faster per step, one subject or a batch, "
+                            "after a capture of seconds (one to two minutes the first time on a machine): for long "
+                            "recordings and large batches")
     track.add_argument("--max-gap", type=more_than_one, default=TrackerSettings.max_gap, metavar="STEPS",
                        help="a gap in time longer than this many frame intervals starts a new segment: the tracker "
                             f"restarts from the targets after it (default {TrackerSettings.max_gap:g})")
