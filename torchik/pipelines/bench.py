@@ -4,7 +4,10 @@ per-subject loops a user could assemble from existing libraries today.
 For each model (Human66, Human48, iCub) and batch size B, the tracker (kinematics, residuals, the
 constrained QP with the batched backend, integration) steps B subjects through a walking-like
 motion (`periodic_motion`, every subject with its own phases), and the throughput is B times the
-steps per second. In the same run, one subject at a time:
+steps per second. With --compile each batch size's step is measured a second time captured and
+replayed (``torchik batched compiled``, `TrackerSettings(compile=True)`; from 32 subjects solved on
+the joints' tree; the capture, made during the warm-up, is reported below the table, not timed).
+In the same run, one subject at a time:
 
 - ``torchik+piqp``: torchik's tracker for one subject with the PIQP backend (qpsolvers);
 - ``torchik compiled``: the same with its usual step captured and replayed compiled
