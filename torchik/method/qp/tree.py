@@ -38,9 +38,10 @@ class JointTree:
     stop): its joints are order[start:stop] (level L = len(levels), the base, stands for node n).
     Each level's work reads and writes only its own per-level tensors, never a whole [n,...]
     accumulator: written in place, such an accumulator is copied whole at every level once the step
-    is captured and made functional (`captured.py`). Eagerly the per-level factorisation is faster
-    too (Human66 at B = 1024, one thread, medians of five timings interleaved with the accumulator's:
-    8.3 against 13.0 ms) and the solve as fast (5.4 against 5.3 ms), with the same solution to the bit.
+    is captured and made functional (`captured.py`). Eagerly it costs about what the accumulator
+    did (Human66 at B = 1024, one thread, four timings interleaved with it: the factorisation's
+    median 7.9-9.1 ms against 6.7-13.0, the solve's 4.4-5.4 against 4.8-5.5), with the same
+    solution to the bit.
     up[h]: where level h's sum of its children's contributions comes from, as (child level, the
     child rows that feed level h or None for all, the level-h rows they add to or None for the same
     rows); down[h]: (the levels holding level h's parents, each with its rows) and the permutation
@@ -211,7 +212,9 @@ class TreeFactor:
     """H restricted to the free variables, factorised leaves first (see the module's docstring).
 
     Internally batch-last ([joint, ..., B]) and one tensor per tree level (`JointTree.levels`):
-    every level's work is a few elementwise operations on its own rows."""
+    every level's work is a few elementwise operations on its own rows. The factor (gain, u) is
+    kept whole as well, each level a view of it, so that `select` takes one gather per tensor
+    rather than one per level (the active set selects subjects at every iteration)."""
 
     def __init__(self, hessian: TreeHessian, free: torch.Tensor, extra: torch.Tensor | None):
         tree = hessian.tree
@@ -229,8 +232,8 @@ class TreeFactor:
         weight = hessian.node_weight.T.index_select(0, tree.node_order)  # [n+1,B], the base last
         eye = torch.eye(3, dtype=dtype, device=free.device)[:, :, None]
         self.axes = [axes[start:stop] for start, stop in tree.levels]  # [m,3,B] per level
-        self.gain: list[torch.Tensor] = []  # [m,B] per level; 0: held, not eliminated
-        self.u: list[torch.Tensor] = []  # [m,3,B] per level: S_j a_j
+        gains: list[torch.Tensor] = []  # [m,B] per level; 0: held, not eliminated
+        us: list[torch.Tensor] = []  # [m,3,B] per level: S_j a_j
         passed: list[torch.Tensor] = []  # [m,3,3,B] per level: P_j, what each joint passes to its parent
         for h, (start, stop) in enumerate(tree.levels + ((n, n + 1),)):
             S = _gathered(weight[start:stop, None, None, :] * eye, passed, tree.up[h], stop - start)  # [m,3,3,B]
@@ -242,8 +245,11 @@ class TreeFactor:
             u = (column[0] * a[:, 0:1]).addcmul_(column[1], a[:, 1:2]).addcmul_(column[2], a[:, 2:3])
             gain = joint_free[start:stop] / (a * u).sum(1).add_(joint_diagonal[start:stop])
             passed.append(torch.addcmul(S, (gain[:, None] * u)[:, :, None], u[:, None], value=-1.0))
-            self.gain.append(gain)
-            self.u.append(u)
+            gains.append(gain)
+            us.append(u)
+        # kept whole, [n,B] and [n,3,B], the levels views of them: `select` picks subjects in one call each
+        self._whole = (torch.cat(gains) if gains else axes.new_zeros(0, B), torch.cat(us) if us else axes, axes)
+        self._levels()
         # the base: omega_B's 3x3 block and p_dot_B's diagonal, held components replaced by identity
         f = self.free[3:6].T  # [B,3]
         assert S is not None  # the last level's: the base's
@@ -263,11 +269,16 @@ class TreeFactor:
         picked = object.__new__(TreeFactor)
         picked.tree = self.tree
         picked.free, picked.linear = last(self.free), last(self.linear)
-        picked.gain, picked.u, picked.axes = ([last(t) for t in level] for level in (self.gain, self.u, self.axes))
+        picked._whole = tuple(last(t) for t in self._whole)
+        picked._levels()
         picked.base_weight = self.base_weight.index_select(0, subjects)
         picked.base_factor = self.base_factor.index_select(0, subjects)
         picked.positive = self.positive.index_select(0, subjects)
         return picked
+
+    def _levels(self) -> None:
+        """gain [m,B], u and axes [m,3,B] per level, as views of the whole tensors."""
+        self.gain, self.u, self.axes = ([t[start:stop] for start, stop in self.tree.levels] for t in self._whole)
 
     def solve(self, rhs: torch.Tensor, held: torch.Tensor | None = None) -> torch.Tensor:
         """x with (H x)_i = rhs_i on the free variables and x_i = held_i on the others.
