@@ -106,7 +106,8 @@ def _depth(parents, j, n) -> int:
     return d
 
 
-def _links_between_levels(order, parents, levels, n, long):
+def _links_between_levels(order: list[int], parents: list[int], levels: list[tuple[int, int]], n: int,
+                           long: dict[str, Any]) -> tuple[tuple, tuple]:
     """`JointTree.up` and `.down` (build time only): for each level, which rows of which other levels
     its children and its parents are."""
     L = len(levels)
