@@ -61,24 +61,25 @@ def frame_poses(t: TreeTensors, p_B, R_B, s) -> tuple[torch.Tensor, torch.Tensor
     # Each level written into one [F,...] tensor; while the step is traced for capture, a tensor
     # per level, concatenated at the end (`capture.tracing`)
     R_level, p_level = R_base[None], None if rotations_only else p_B.T[None]
-    R_levels, p_levels = [R_level], [p_level]
-    buffers = not tracing()
-    R = torch.empty_like(R_local) if buffers else None
-    p = torch.empty_like(p_local) if buffers and not rotations_only else None
+    traced = tracing()
+    R = None if traced else torch.empty_like(R_local)
+    p = None if traced or rotations_only else torch.empty_like(p_local)
+    R_levels, p_levels = [R_level], [p_level]  # while traced: each level's, concatenated at the end
     for start, stop, parents in t.levels:  # one step per tree level, not per link
         R_parent = R_level.index_select(0, parents)
         if p_level is not None:
             p_level = torch.add(p_level.index_select(0, parents), matvec_soa(R_parent, p_local[start:stop]),
                                 out=None if p is None else p[start:stop])
-            p_levels.append(p_level)
         R_level = matmul_soa(R_parent, R_local[start:stop], out=None if R is None else R[start:stop])
-        R_levels.append(R_level)
-    if R is not None:  # the base frame's row, which the levels do not write
-        R[0] = R_base
-        if p is not None:
-            p[0] = p_B.T
-        return R, p
-    return torch.cat(R_levels), None if rotations_only else torch.cat([x for x in p_levels if x is not None])
+        if traced:
+            R_levels.append(R_level)
+            p_levels.append(p_level)
+    if R is None:
+        return torch.cat(R_levels), None if rotations_only else torch.cat([x for x in p_levels if x is not None])
+    R[0] = R_base  # the base frame's row, which the levels do not write
+    if p is not None:
+        p[0] = p_B.T
+    return R, p
 
 
 def compose_by_jumping(t: TreeTensors, R_local, p_local, R_base, p_base):

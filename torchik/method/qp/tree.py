@@ -232,7 +232,6 @@ class TreeFactor:
         joint_diagonal = diagonal[6:].index_select(0, tree.order)
         weight = hessian.node_weight.T.index_select(0, tree.node_order)  # [n+1,B], the base last
         eye = torch.eye(3, dtype=dtype, device=free.device)[:, :, None]
-        self.axes = [axes[start:stop] for start, stop in tree.levels]  # [m,3,B] per level
         gains: list[torch.Tensor] = []  # [m,B] per level; 0: held, not eliminated
         us: list[torch.Tensor] = []  # [m,3,B] per level: S_j a_j
         passed: list[torch.Tensor] = []  # [m,3,3,B] per level: P_j, what each joint passes to its parent
@@ -241,7 +240,7 @@ class TreeFactor:
             assert S is not None  # the targets' weights start every level's sum
             if h == len(tree.levels):
                 break
-            a = self.axes[h]
+            a = axes[start:stop]  # [m,3,B]
             column = S.unbind(2)  # S_j's columns [m,3,B]: u = S_j a without an [m,3,3,B] product
             u = (column[0] * a[:, 0:1]).addcmul_(column[1], a[:, 1:2]).addcmul_(column[2], a[:, 2:3])
             gain = joint_free[start:stop] / (a * u).sum(1).add_(joint_diagonal[start:stop])
