@@ -94,12 +94,12 @@ def bench_batched(name: str, batch: int, device: str, dtype, min_seconds: float,
     iterations, rescued, active, unsolved, steps = 0, 0, 0.0, 0, 0
     start = time.perf_counter()
     while steps < max_steps:
-        solver.iterations = solver.rescued = 0  # a replayed usual step does not call the backend
         _, diagnostics = tracker.step(sequence[warmup + steps])
         steps += 1
         replayed = compiled and math.isnan(diagnostics.kinematics_time)
-        iterations += solver.iterations + replayed
-        rescued += solver.rescued
+        solved = not math.isnan(diagnostics.qp_time)  # the backend ran (else its counters are an earlier step's)
+        iterations += replayed + (solver.iterations if solved else 0)
+        rescued += solver.rescued if solved else 0
         active += float(diagnostics.active_constraints.double().mean())
         unsolved += int((~diagnostics.solved).sum())
         if time.perf_counter() - start > min_seconds:
