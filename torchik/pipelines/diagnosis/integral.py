@@ -111,12 +111,14 @@ def vertical_turn(time: torch.Tensor) -> torch.Tensor:
 
 
 class Frame(NamedTuple):
-    """quieter_frame's answer: the frame's name, e [T,3] and the regressors [T,3,k] in it, and the
-    fit of G[0] on the whole span there (integral_fit's theta, covariance and noise)."""
+    """quieter_frame's answer: the frame's name, e [T,3] and the regressors [T,3,k] in it, the
+    integral of e and G[0] there (integrated's (C, int G, t)) and its fit (integral_fit's theta,
+    covariance and noise)."""
 
     name: str
     e: torch.Tensor
     G: list[torch.Tensor]
+    integral: tuple[torch.Tensor, torch.Tensor, torch.Tensor]
     fit: tuple[torch.Tensor, torch.Tensor, tuple[float, float]]
 
 
@@ -138,7 +140,7 @@ def quieter_frame(e: torch.Tensor, R: torch.Tensor, G: list[torch.Tensor], keep:
         C, GI, t = integrated(e_F, G_F[0], keep, time, stride)
         fit = integral_fit(C, GI, t)
         A, q = fit[2]
-        frames.append((2.0 * A + q * float(t[-1]), Frame(name, e_F, G_F, fit)))  # the noise at the end
+        frames.append((2.0 * A + q * float(t[-1]), Frame(name, e_F, G_F, (C, GI, t), fit)))  # the noise at the end
     return min(frames, key=lambda option: option[0])[1]
 
 
@@ -155,6 +157,6 @@ def agreement(e: torch.Tensor, R: torch.Tensor, G: torch.Tensor, keep: torch.Ten
     if stride < 1:
         return 0.0
     frame = quieter_frame(e, R, [G], keep, time, stride)
-    C, GI, t = integrated(frame.e, frame.G[0], keep, time, stride)
+    C, GI, t = frame.integral
     W = whitener(frame.fit[2], t)
     return float((W @ C).square().sum() - (W @ (C - GI @ theta)).square().sum())
