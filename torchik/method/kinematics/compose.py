@@ -49,8 +49,15 @@ def frame_poses(t: TreeTensors, p_B, R_B, s) -> tuple[torch.Tensor, torch.Tensor
         angle = s.T.index_select(0, t.frame_joint) * t.frame_is_joint  # [F,B]; the base has no joint
     else:  # a single rigid body
         angle = s.new_zeros(t.n_frames, B)
-    sin = torch.sin(angle)[:, None, None, :]
-    one_minus_cos = (1.0 - torch.cos(angle))[:, None, None, :]
+    if tracing():
+        # one tensor, which TorchInductor computes in a loop of its own, vectorised along the
+        # batch; left to fuse into the rotations' loop, it took each sine and cosine one subject at
+        # a time across the 9 entries (these lines alone, Human66 at B = 1024: 0.54 against 1.2 ms)
+        both = torch.cat((torch.sin(angle), 1.0 - torch.cos(angle)))
+        sin, one_minus_cos = both[:len(angle), None, None, :], both[len(angle):, None, None, :]
+    else:
+        sin = torch.sin(angle)[:, None, None, :]
+        one_minus_cos = (1.0 - torch.cos(angle))[:, None, None, :]
     # R_parent->frame = R_off exp(hat(axis) angle) = R_off + sin R_off K + (1 - cos) R_off K^2
     R_local = torch.addcmul(g.offset_rotation, sin, g.rotation_sin_term).addcmul_(one_minus_cos, g.rotation_cos_term)
     p_local = g.offset_position.expand(-1, -1, B)

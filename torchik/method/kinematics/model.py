@@ -14,6 +14,7 @@ from typing import Any, Sequence
 import torch
 
 from ...errors import InputError, ModelError, UnknownLinkError
+from ..capture import tracing
 from .compose import SMALL_BATCH, fill_jacobian, frame_poses, frame_rotations_small, link_poses, matmul_soa, world_axes
 from .selection import LinkKinematics, LinkSelection, compile_selection
 from .tensors import Geometry, tensors, tree_geometry
@@ -246,7 +247,11 @@ class KinematicModel:
             R_link = R.index_select(0, sel.anchor)
             if not sel.offsets_are_identity:
                 R_link = matmul_soa(R_link, sel.offset_rotation.expand_as(R_link))
-            axes = world_axes(t, R).permute(2, 0, 1).contiguous() if joint_axes else None
+            axes = world_axes(t, R).permute(2, 0, 1) if joint_axes else None
+            # captured, the axes stay batch-last in memory (a [B,n,3] view): the tree's factor reads
+            # them batch-last, and a batch-first copy is a scattered store per number
+            if axes is not None and not tracing():
+                axes = axes.contiguous()
             return LinkKinematics(R_link.permute(3, 0, 1, 2).contiguous(), None, None, axes)
         R = frame_rotations_small(t, base_rotation, joint_positions)  # [B,F+1,3,3]
         R_link = R.index_select(1, sel.anchor)
