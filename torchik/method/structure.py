@@ -81,9 +81,9 @@ class BatchSetup:
     # 96 subjects (Human66 at B = 8: 3-4 ms a step dense, 7-11 ms on the tree; equal at B = 96)
     TREE_FROM: ClassVar[int] = 96
     # captured (settings.compile), the tree's elimination costs no time per level and is the faster
-    # solve from this size (Human66 at B = 64: 2.3 ms a step against 4.7 ms dense). At B = 1 it was
-    # 0.37 against 0.43 ms, but its first capture on a machine takes twice as long (66 against 35 s),
-    # which the test suite and a live session's start would pay
+    # solve from this size (Human66 at B = 64: 2.3 ms a step against 4.7 ms dense). At B = 1 the
+    # dense step is faster (0.22 against 0.37 ms, interleaved in one process), and the tree's first
+    # capture on a machine takes twice as long (61-66 against 35 s)
     CAPTURED_TREE_FROM: ClassVar[int] = 32
 
     size: int
