@@ -43,10 +43,14 @@ def candidates(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tens
 def _weigh_turns(out: list[Effect]) -> None:
     """A gyro bias whose integral a turn about the vertical explains as well (GyroBias.implausible)
     is that link's heading drift only if its orientations turn too: the drift candidate of the same
-    link, scored on them and the gyro together, leaves its score beside the bias. A bias along the
-    sensor axis of a link that stays upright (a foot, a hand) also looks like a vertical turn to the
-    gyro alone, but the orientations do not follow it."""
-    drifts = {c.target: c.score for c in out if c.kind == "heading_drift" and c.fit is not None}
+    link leaves its score on them (less its own gyro's part, which says what the bias' score says)
+    beside the bias, and the drift is preferred where that is above zero. A bias along the sensor
+    axis of a link that stays upright (a foot, a hand) also looks like a vertical turn to the gyro
+    alone, but the orientations do not follow it. (The bias' own score, a likelihood ratio over the
+    whole time, and the drift's, held out, are not on one scale: comparing them kept 8 s of a 1.5
+    deg/s drift on an upper arm as a bias.)"""
+    drifts = {c.target: c.score - c.params.get("own_gyro_score", 0.0) for c in out
+              if c.kind == "heading_drift" and c.fit is not None}
     for c in out:
         if c.kind == "gyro_bias" and "vertical_turn_score" in c.params and c.target in drifts:
             c.params["drift_score"] = drifts[c.target]

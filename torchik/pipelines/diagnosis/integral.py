@@ -44,15 +44,39 @@ def integrated(e: torch.Tensor, G: torch.Tensor, keep: torch.Tensor, time: torch
     return C[1:] - C[0], GI[1:] - GI[0], t[1:] - t[0]
 
 
-def integral_fit(C: torch.Tensor, G: torch.Tensor, t: torch.Tensor
+def integral_fit(C: torch.Tensor, G: torch.Tensor, t: torch.Tensor, walk_floor: float = 0.0
                  ) -> tuple[torch.Tensor, torch.Tensor, tuple[float, float]]:
     """(theta [k], its covariance [k,k], the noise's (A, q)) of C = G theta + noise (C [K,d], G [K,d,k]
     at times t [K], as `integrated` gives them) by generalised least squares, in the noise model
     Sigma = A (I + 1 1^T) + q min(t_i, t_j) (_covariances) of the largest restricted likelihood: a
     stationary part (the orientations' noise, in the first block and now) and a random walk (the
-    gyro's noise), their ratio searched on a logarithmic grid and their scale profiled out."""
+    gyro's noise), their ratio searched on a logarithmic grid and their scale profiled out.
+
+    walk_floor (rad^2/s): the least walk rate q (shared_walk: what the recording's other gyros show);
+    where the likelihood puts q below it, q is raised to it and A kept, and both are scaled up if what
+    the fit leaves is larger than that model says."""
+    theta, N, fixed, rss, free = _restricted(C, G, t)
+    scale = rss / free
+    nll = fixed + free * torch.log(scale.clamp(min=1e-300))
+    j = int(nll.argmin())
+    rho, s2 = float(_SHARE[j]), float(scale[j])
+    noise = (max(s2 * rho, 1e-12 * s2), s2 * (1.0 - rho) / float(t[-1]))
+    if noise[1] >= walk_floor:
+        return theta[j], s2 * torch.linalg.inv(N[j]), noise
+    # a dozen blocks of one gyro often put its walk at zero (the likelihood's boundary), and a walk read
+    # as a constant A leaves the bias' standard error far too small: on the study's clean white-noise
+    # recordings, hands "biased" by 0.1 deg/s at 13 standard errors
+    return _gls(C, G, t, (noise[0], walk_floor))
+
+
+def _restricted(C: torch.Tensor, G: torch.Tensor, t: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, int]:
+    """integral_fit's pieces on the grid of the stationary part's share (_SHARE, S values), where
+    Sigma = scale (share S + (1 - share) B / t_K): the GLS theta [S,k] and its normal matrix N
+    [S,k,k], and -2 log of the restricted likelihood as fixed [S] + free log scale + rss [S] / scale
+    (free: the values less the fitted parameters)."""
     n, d, k = G.shape
-    share = _SHARE.to(C.dtype)  # [S] the stationary part's, Sigma(share) = share S + (1 - share) B
+    share = _SHARE.to(C.dtype)
     logdet_B, P, D = _basis(tuple(float(x) for x in t))
     P, D = P.to(C.dtype), D.to(C.dtype)
     zC, zG = P @ C, (P @ G.reshape(n, d * k)).reshape(n, d, k)  # B and S both diagonal in this basis
@@ -62,12 +86,48 @@ def integral_fit(C: torch.Tensor, G: torch.Tensor, t: torch.Tensor
     # restricted likelihood: a walk over a dozen blocks looks much like the line theta draws, and the
     # plain likelihood, blind to what the fit took, put the walk's rate 17 times too low on one of the
     # study's links (10100's L3, 0.52 deg/s of "bias" at a standard error of 0.05)
-    free = max(n * d - k, 1)
-    scale = ((zC - torch.einsum("idk,sk->sid", zG, theta)).square() / v[..., None]).sum((1, 2)) / free
-    nll = (d * (logdet_B + torch.log(v).sum(-1)) + torch.logdet(N) + free * torch.log(scale.clamp(min=1e-300)))
-    j = int(nll.argmin())
-    rho, s2 = float(share[j]), float(scale[j])
-    return theta[j], s2 * torch.linalg.inv(N[j]), (max(s2 * rho, 1e-12 * s2), s2 * (1.0 - rho) / float(t[-1]))
+    rss = ((zC - torch.einsum("idk,sk->sid", zG, theta)).square() / v[..., None]).sum((1, 2))
+    return theta, N, d * (logdet_B + torch.log(v).sum(-1)) + torch.logdet(N), rss, max(n * d - k, 1)
+
+
+def _gls(C: torch.Tensor, G: torch.Tensor, t: torch.Tensor, noise: tuple[float, float]
+         ) -> tuple[torch.Tensor, torch.Tensor, tuple[float, float]]:
+    """integral_fit's answer in the given noise model (A, q), scaled by the variance of what the fit
+    leaves (whitened) where that is above one."""
+    n, d, k = G.shape
+    W = whitener(noise, t)
+    zC, zG = W @ C, (W @ G.reshape(n, d * k)).reshape(n, d, k)
+    N = torch.einsum("idk,idl->kl", zG, zG)
+    theta = torch.linalg.solve(N, torch.einsum("idk,id->k", zG, zC))
+    s2 = max(float((zC - zG @ theta).square().sum()) / max(n * d - k, 1), 1.0)
+    return theta, s2 * torch.linalg.inv(N), (s2 * noise[0], s2 * noise[1])
+
+
+def shared_walk(integrals: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]) -> float:
+    """The walk rate q (rad^2/s) the gyros of one recording share: that of the largest restricted
+    likelihood of all their integrals together (integrals: each gyro's (C, int G, t) in its sensor
+    frame, with the bias' regressor: sensor_integral), each gyro's stationary part its own. The gyros
+    of one suit are one make, and in the sensor frame the walk is their own noise and the
+    orientations', whatever the link does: a dozen blocks tell one gyro's walk poorly (often zero, the
+    likelihood's boundary), two dozen gyros together well. 0 without any."""
+    total = torch.zeros(len(_WALKS), dtype=torch.float64)
+    for C, G, t in integrals:
+        _, _, fixed, rss, free = _restricted(C, G, t)
+        share = _SHARE[:-1]  # a share of 1 has no walk
+        s2 = _WALKS[:, None] * float(t[-1]) / (1.0 - share)  # [Q,S] the scale that puts the walk at q
+        total += (fixed[:-1] + free * torch.log(s2) + rss[:-1].to(torch.float64) / s2).min(1).values
+    return float(_WALKS[int(total.argmin())]) if integrals else 0.0
+
+
+_WALKS = torch.logspace(-12.0, 0.0, 241, dtype=torch.float64)  # rad^2/s: shared_walk's grid, 12 % apart
+
+
+def sensor_integral(e: torch.Tensor, R: torch.Tensor, keep: torch.Tensor, time: torch.Tensor, stride: int
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """integrated's (C, int G, t) of a gyro's disagreement e [T,3] with its orientations R [T,3,3]
+    (valid where keep [T]) in the sensor frame, G the bias' regressor there (the identity)."""
+    Rt = R.transpose(-1, -2)
+    return integrated((Rt @ e[..., None])[..., 0], Rt @ R, keep, time, stride)
 
 
 _RATIO = torch.logspace(-4.0, 4.0, SHARES - 2, dtype=torch.float64)  # A / (q t_K): either part may dominate
@@ -123,10 +183,10 @@ class Frame(NamedTuple):
 
 
 def quieter_frame(e: torch.Tensor, R: torch.Tensor, G: list[torch.Tensor], keep: torch.Tensor, time: torch.Tensor,
-                  stride: int) -> Frame:
+                  stride: int, walk_floor: float = 0.0) -> Frame:
     """e [T,3], a gyro's disagreement with its orientations R [T,3,3] (valid where keep [T]), and the
     world-frame regressors G ([T,3,k] each) in the frame, "world" or "sensor", where the integral's
-    noise (fitted with G[0]) is smaller at the end; with that fit.
+    noise (fitted with G[0], the walk at least walk_floor: integral_fit) is smaller at the end; with that fit.
 
     A recording's gyro rates are in the world frame, put there by some orientation: the recorded one
     (a suit's own fusion), and e = -dn/dt, whose integral telescopes in the world frame; or another
@@ -138,7 +198,7 @@ def quieter_frame(e: torch.Tensor, R: torch.Tensor, G: list[torch.Tensor], keep:
     frames = []
     for name, e_F, G_F in options:
         C, GI, t = integrated(e_F, G_F[0], keep, time, stride)
-        fit = integral_fit(C, GI, t)
+        fit = integral_fit(C, GI, t, walk_floor)
         A, q = fit[2]
         frames.append((2.0 * A + q * float(t[-1]), Frame(name, e_F, G_F, (C, GI, t), fit)))  # the noise at the end
     return min(frames, key=lambda option: option[0])[1]

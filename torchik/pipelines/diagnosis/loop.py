@@ -200,6 +200,10 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
     A deferred candidate (taken back from a round with others) comes alone, when it is the best."""
     taken = s.rejected + [st.effect for st in s.steps]
     found = [c for c in s.candidates(kinds) if not any(c.overlaps(e) for e in taken)]
+    drifting = {st.effect.target for st in s.steps if st.effect.kind == "heading_drift"}
+    for c in found:  # what a drift kept on the link left (its rate fitted short) is that drift's, not a bias
+        if c.kind == "gyro_bias" and c.target in drifting and "vertical_turn_score" in c.params:
+            c.params["drift_kept"] = True
     found = sorted(found + frames.candidates(s, kinds, taken, gain), key=lambda c: -c.score)  # half turns, swaps
     if first:
         s.unobservable = [c for c in found if c.fit is None]
