@@ -12,7 +12,8 @@ residuals, repeat.
         nor one joint away: disjoint residuals, none the echo of another): refit each on all the
         data, add them (correct the recording, or augment the URDF), re-track, and
         refine their parameters `refine` times (the fits are linearised and the tracker absorbs
-        part of an effect: Gauss-Newton steps)
+        part of an effect: Gauss-Newton steps), with the earlier effects of their kind on related
+        links (refinement.py)
         keep each if the error it acts on (over the links the others do not move) did not rise and
         it is still plausible; else take it back;
         then re-score every effect kept before it with the others in place and drop those that no
@@ -39,7 +40,7 @@ import torch
 from ...io.recording import Recording
 from ...method.kinematics import KinematicModel
 from ...method.metrics import orientation_error
-from . import elimination, frames, jointfit, joints, posture
+from . import elimination, frames, jointfit, joints, posture, refinement
 from .analysis import DEFAULT_GAIN, Analysis, NoiseFloor, joint_summary, link_summary, noise_floor
 from .calibration import FORMAT
 from .candidates import KINDS
@@ -372,15 +373,7 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
         found = [v for s, chosen, *_ in added for v in _variants(s, chosen)] if eliminate else []
         elimination.track([s for s, *_ in added], found, links, gain, progress, max_samples)
         for _ in range(refine):
-            moved = {}  # those left as they were keep their analysis: re-tracking would give it again
-            for s, chosen, *_ in added:
-                for effect in chosen:
-                    update = None if isinstance(effect, joints.MissingDof) else s.refit(effect)
-                    if update is not None and not update.negligible():
-                        s.add(update)
-                        effect.refine(update)
-                        moved[id(s)] = s
-            analyse_subjects(list(moved.values()), links, gain, progress, max_samples)
+            refinement.refine([(s, chosen) for s, chosen, *_ in added], links, gain, progress, max_samples)
         complete = _check(added, links, gain, progress, max_samples, round_, say)
         elimination.eliminate([v for v in found if id(v[0]) in complete], links, gain, threshold, progress,
                               max_samples, say, lambda s, key: errors(*s.current).overall[key], WORSE)
