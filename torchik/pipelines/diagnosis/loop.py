@@ -289,14 +289,16 @@ def _refined_to_nothing(effect: Effect) -> str:
 
 
 def _check(added: list[Added], links, gain: float, progress: bool, max_samples: int, round_: int,
-           say: Callable[[str], None]) -> set[int]:
+           say: Callable[[str], None], refined: set[int]) -> set[int]:
     """Keep each effect of the round whose error (Effect.error, over the links the round's other
     effects do not move: all of them when it came alone) did not rise by more than WORSE once
     re-tracked and refined, and that is still plausible; take back the others (the subject rebuilt
     from its source without them and tracked again). One taken back from a round with others is
     tried again in a round of its own (Subject.deferred: what rose may be the others' doing), then
-    rejected if it fails again. Returns the ids of the subjects that kept all
-    of theirs (their elimination variants hold what they have)."""
+    rejected if it fails again. A subject in `refined` (its earlier effects refined beside the round's)
+    is rebuilt even when the round leaves nothing, so that its recording holds them as refined.
+    Returns the ids of the subjects that kept all of theirs (their elimination variants hold what
+    they have)."""
     complete, rebuilt = set(), []
     for s, chosen, before, saved in added:
         after = errors(*s.current)
@@ -321,7 +323,7 @@ def _check(added: list[Added], links, gain: float, progress: bool, max_samples: 
             say(f"round {round_ + 1}: {effect.kind} at {effect.target} reverted ({why})")
         if len(kept) == len(chosen):
             complete.add(id(s))
-        elif not kept:
+        elif not kept and id(s) not in refined:
             s.recording, s.urdf, s.model, s.analysis = saved
         else:
             assert s.source is not None, "set by the loop"
@@ -372,9 +374,10 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
         # the variants for backward elimination track in the batch of their subject
         found = [v for s, chosen, *_ in added for v in _variants(s, chosen)] if eliminate else []
         elimination.track([s for s, *_ in added], found, links, gain, progress, max_samples)
+        refined: set[int] = set()  # subjects whose earlier effects were refined beside this round's
         for _ in range(refine):
-            refinement.refine([(s, chosen) for s, chosen, *_ in added], links, gain, progress, max_samples)
-        complete = _check(added, links, gain, progress, max_samples, round_, say)
+            refined |= refinement.refine([(s, chosen) for s, chosen, *_ in added], links, gain, progress, max_samples)
+        complete = _check(added, links, gain, progress, max_samples, round_, say, refined)
         elimination.eliminate([v for v in found if id(v[0]) in complete], links, gain, threshold, progress,
                               max_samples, say, lambda s, key: errors(*s.current).overall[key], WORSE)
     fits = jointfit.refit(subjects, links, gain, progress, max_samples) if joint else [None] * len(subjects)

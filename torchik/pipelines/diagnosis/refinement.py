@@ -19,25 +19,30 @@ from .subject import Subject, analyse_subjects
 
 
 def refine(rounds: Sequence[tuple[Subject, list[Effect]]], links, gain: float, progress: bool,
-           max_samples: int) -> None:
+           max_samples: int) -> set[int]:
     """One refinement pass over the subjects and the effects their round chose (`rounds`), with the
     earlier effects of their kind beside them; the subjects that moved are tracked again (one batch
     per model). A missing axis is not refined (its angle is fitted sample by sample already), nor an
     earlier effect whose refinement would leave a body's or a sensor's bounds: the loop's check of
-    plausibility judges this round's effects once refined, not the earlier ones."""
-    moved = {}  # those left as they were keep their analysis: re-tracking would give it again
+    plausibility judges this round's effects once refined, not the earlier ones. Returns the ids of
+    the subjects whose earlier effects were refined (a round taken back leaves those as refined)."""
+    moved, earlier = {}, set()  # those left as they were keep their analysis: re-tracking would give it again
     for s, chosen in rounds:
         neighbours = neighbours_kept(s, chosen, links)
         for effect in chosen + neighbours:
             update = None if isinstance(effect, joints.MissingDof) else s.refit(effect)
             if update is None or update.negligible():
                 continue
-            if any(effect is n for n in neighbours) and _refined_beyond(effect, update):
+            neighbour = any(effect is n for n in neighbours)
+            if neighbour and _refined_beyond(effect, update):
                 continue
             s.add(update)
             effect.refine(update)
             moved[id(s)] = s
+            if neighbour:
+                earlier.add(id(s))
     analyse_subjects(list(moved.values()), links, gain, progress, max_samples)
+    return earlier
 
 
 def neighbours_kept(s: Subject, chosen: list[Effect], links) -> list[Effect]:
