@@ -24,7 +24,7 @@ import torch
 from ...io.recording import Recording
 from .analysis import Analysis
 from .effect import Effect, Score, lowpass_blocks, replace, score, shift
-from .integral import integrated, quieter_frame, sensor_integral, shared_walk, spacing, vertical_turn, whitener
+from .integral import halves_stride, integrated, quieter_frame, subject_walk, vertical_turn, whitener
 from .placement import MAX_DELAY
 from .series import simpson
 
@@ -139,7 +139,7 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
     low = lambda x: lowpass_blocks(x, time, cutoff, train, test)  # noqa: E731  (all links at once)
     e_low = low(analysis.e[:, b])
     w_lows = low(simpson(torch.where(ok[..., None], analysis.w_m[:, b], 0.0)))
-    walk = _shared_walk(analysis, b, derived)
+    walk = subject_walk(analysis.e[:, b], analysis.R_m[:, b], ok, time, ~derived)
     for i, name in enumerate(analysis.links):
         if target not in (None, "all", name):
             continue
@@ -173,17 +173,6 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
     return out
 
 
-def _shared_walk(analysis: Analysis, b: int, derived: torch.Tensor) -> float:
-    """The walk rate (rad^2/s) of the integrals of subject b's gyros, pooled (integral.shared_walk)."""
-    ok, time = analysis.valid[:, b], analysis.time
-    integrals = []
-    for i in range(len(analysis.links)):
-        stride = min(spacing(time), int(ok[:, i].sum()) // 10)  # as _bias: four blocks a half past its first
-        if not bool(derived[i]) and stride >= 1 and int(ok[:, i].sum()) >= 16:
-            integrals.append(sensor_integral(analysis.e[:, b, i], analysis.R_m[:, b, i], ok[:, i], time, stride))
-    return shared_walk(integrals)
-
-
 def _bias(name: str, e: torch.Tensor, R: torch.Tensor, ok: torch.Tensor, time: torch.Tensor, walk: float = 0.0
           ) -> GyroBias | None:
     """The GyroBias of one gyro from its disagreement e [T,3] with its orientations R [T,3,3] (valid
@@ -195,18 +184,16 @@ def _bias(name: str, e: torch.Tensor, R: torch.Tensor, ok: torch.Tensor, time: t
     and a random walk (the gyro's own noise, and n x w where the gyro's rates were put in the world
     frame by other orientations than the recorded ones), fitted with the bias (so a bias does not
     pass for a walk), the walk at least `walk` (rad^2/s), what the recording's gyros share
-    (_shared_walk). The frame F, world or sensor, is the one the noise is smaller in
+    (integral.subject_walk). The frame F, world or sensor, is the one the noise is smaller in
     (integral.quieter_frame).
 
     The whole time, not a held-out half: the noise model is fitted, not the score's judge, and a
     half's six seconds halve the span a bias' line is seen over. Over the study's 90 recordings
     (1711 gyros without a bias), the largest likelihood ratio was 11.9, against a pass mark of 22.7;
     held out both ways, 29 of the 38 biased gyros had passed, 36 pass now."""
-    first = torch.arange(len(time)) < len(time) // 2
-    shortest = min(int((ok & first).sum()), int((ok & ~first).sum()))
-    if shortest < 8:  # as every fit here: too short a recording to fit on
+    stride = halves_stride(ok, time)
+    if stride is None:  # as every fit here: too short a recording to fit on
         return None
-    stride = min(spacing(time), shortest // 5)  # at least four blocks a half past its first
     frame = quieter_frame(e, R, [R, vertical_turn(time)], ok, time, stride, walk)
     bias, cov, noise = frame.fit
     C, GI, t = frame.integral

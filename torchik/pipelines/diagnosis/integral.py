@@ -122,6 +122,26 @@ def shared_walk(integrals: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]
 _WALKS = torch.logspace(-12.0, 0.0, 241, dtype=torch.float64)  # rad^2/s: shared_walk's grid, 12 % apart
 
 
+def halves_stride(keep: torch.Tensor, time: torch.Tensor) -> int | None:
+    """The stride, in samples, of a gyro's blocks: SPACING long, and at least four blocks in each half
+    of the time (valid where keep [T]) past its first; None where a half has under 8 valid samples."""
+    first = torch.arange(len(time)) < len(time) // 2
+    shortest = min(int((keep & first).sum()), int((keep & ~first).sum()))
+    return None if shortest < 8 else min(spacing(time), shortest // 5)
+
+
+def subject_walk(e: torch.Tensor, R: torch.Tensor, keep: torch.Tensor, time: torch.Tensor, gyros: torch.Tensor
+                 ) -> float:
+    """shared_walk of one subject's gyros: e [T,L,3] their disagreement with the orientations R
+    [T,L,3,3], valid where keep [T,L], for the links where gyros [L] (those with a gyro of their own)."""
+    integrals = []
+    for i in range(e.shape[1]):
+        stride = halves_stride(keep[:, i], time)
+        if bool(gyros[i]) and stride is not None:
+            integrals.append(sensor_integral(e[:, i], R[:, i], keep[:, i], time, stride))
+    return shared_walk(integrals)
+
+
 def sensor_integral(e: torch.Tensor, R: torch.Tensor, keep: torch.Tensor, time: torch.Tensor, stride: int
                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """integrated's (C, int G, t) of a gyro's disagreement e [T,3] with its orientations R [T,3,3]

@@ -51,8 +51,7 @@ def neighbours_kept(s: Subject, chosen: list[Effect], links) -> list[Effect]:
     L3, was fitted at 42 deg before L3's turn was taken out, and missing twist axes at both its
     joints then took up the rest. Of every kind (tried first), 15007's forearm drift, refined in the
     round that added a wrist's missing axis, went from -3.4 to -4.0 deg/s (-2.7 injected)."""
-    earlier = [st.effect for st in s.steps if not any(st.effect is c for c in chosen)]
-    return [e for e in earlier if not e.model_effect
+    return [e for e in s.effects if not e.model_effect  # the round's own are not among them until _check
             and any(c.kind == e.kind and elimination.related(e, c, s.model, s.urdf, links) for c in chosen)]
 
 
