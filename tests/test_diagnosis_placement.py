@@ -10,7 +10,10 @@ Properties:
 - a rotation of the shank's sensor about the knee's axis is followed by the joints wherever the
   knee and the ankle are free (project_blocks, and project_held there), and leaves a residual exactly at the
   samples where the knee is at its limit (project_held), as the tracker, which cannot move it
-  further, leaves it.
+  further, leaves it;
+- project_held and the projector at the limits, which recompute M only at the samples with a joint
+  held, equal M built at every sample without the held joints' columns (a damped least-squares
+  solve by QR, not the normal equations' inverse).
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from __future__ import annotations
 import math
 
 import pytest
+import torch
 
 from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.pipelines.diagnosis.analysis import analyse
@@ -56,3 +60,31 @@ def test_a_turn_about_a_joint_at_its_limit_leaves_its_residual(pushed):
     held = project_held(pushed, 0, [i], G)[0].norm(dim=(-2, -1))
     assert bool((free <= 1e-6).all()) and bool((held[~at] <= 1e-6).all())
     assert bool((held[at] >= 0.1).all())  # of a unit turn
+
+
+def _without(J: torch.Tensor, held: torch.Tensor, X: torch.Tensor) -> torch.Tensor:
+    """X - J_F (J_F^T J_F + lambda I)^-1 J_F^T X at every sample, J_F: J [S,R,C] without the columns of
+    the joints held [S,n]; solved as least squares on [J_F; sqrt(lambda) I] by QR. X [S,R,k]."""
+    free = torch.cat((torch.ones(len(J), 6, dtype=torch.bool), ~held), -1)
+    J = J * free[:, None, :].to(J.dtype)
+    damping = torch.eye(J.shape[-1], dtype=J.dtype).expand(len(J), -1, -1) * 1e-9 ** 0.5
+    stacked = torch.cat((J, damping), 1)
+    theta = torch.linalg.lstsq(stacked, torch.cat((X, X.new_zeros(len(J), J.shape[-1], X.shape[-1])), 1)).solution
+    return X - J @ theta
+
+
+def test_the_held_projection_is_m_without_the_held_joints_at_every_sample(pushed):
+    links = [LINKS.index("LeftUpperLeg"), LINKS.index(SHANK)]  # the knee held at some samples; the ankle at all
+    S, R = len(pushed.sample), pushed.J.shape[-2]
+    held = pushed.active[pushed.sample, 0][None] & adjacent_joints(pushed)[links][:, None]  # [2,S,n]
+    assert 0 < int(held[0].any(-1).sum()) < S and bool(held[1].any(-1).all())
+    G = torch.randn(2, S, 3, 2, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    got = project_held(pushed, 0, links, G)
+    mask = pushed.rows[:, 0, :, None].to(G.dtype)
+    for n, i in enumerate(links):
+        X = torch.zeros(S, R, 2, dtype=torch.float64)
+        X[:, 3 + 3 * i:6 + 3 * i] = G[n]
+        assert torch.allclose(got[n], _without(pushed.J[:, 0], held[n], X) * mask, atol=1e-9)
+    every = pushed.active[pushed.sample, 0]  # the projector at the limits: every joint at its limit held
+    Y = torch.randn(S, R, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+    assert torch.allclose(pushed.projector(0, at_limits=True) @ Y, _without(pushed.J[:, 0], every, Y) * mask, atol=1e-9)

@@ -1,10 +1,11 @@
-"""targets: non-finite targets are dropped and counted, near-rotations projected, far ones refused."""
+"""targets: non-finite targets are dropped and counted, near-rotations projected, far ones refused;
+a sequence checked at once finds clean exactly the steps that the step-by-step check leaves as they are."""
 
 import pytest
 import torch
 
 from torchik import InputError, so3
-from torchik.method.targets import Targets, check_targets, clean_targets
+from torchik.method.targets import Targets, check_targets, clean_steps, clean_targets
 
 
 def make(B=2, n_p=1, n_o=3, seed=0) -> Targets:
@@ -44,3 +45,17 @@ def test_a_matrix_far_from_a_rotation_is_refused_naming_it():
 def test_shapes_are_checked_with_the_expected_shape_in_the_message():
     with pytest.raises(InputError, match=r"targets.rotation: expected shape \[2, 4, 3, 3\], got \[2, 3, 3, 3\]"):
         check_targets(make(), 1, 4, torch.float64, torch.device("cpu"))
+
+
+def test_a_sequence_checked_at_once_agrees_with_the_check_of_each_step():
+    steps = [make(seed=k) for k in range(6)]
+    steps[1].rotation[0, 2, 1, 1] = float("nan")
+    steps[2].angular_velocity[1, 0, 0] = float("-inf")
+    steps[3].rotation[1, 1] += 1e-7  # projected: not clean
+    steps[4].rotation[0, 0] += 1e-12  # within rounding: clean
+    fields = [torch.stack([getattr(t, name) for t in steps]) for name in vars(steps[0])]
+    each = [(c.all_valid and not bool(c.projected.any())) for c in map(clean_targets, steps)]
+    assert each == [True, False, False, False, True, True]
+    assert clean_steps(*fields).tolist() == each
+    # not targets over time (a rotation field without its 3 x 3): none is taken as checked, the steps say why
+    assert not clean_steps(fields[0], fields[1], fields[2][..., 0], fields[3]).any()

@@ -12,7 +12,7 @@ import torch
 from ..errors import InputError
 from .kinematics import KinematicModel
 from .state import State, StepDiagnostics, TargetSequence, Trajectory, TrajectoryBuffer
-from .targets import Targets
+from .targets import Targets, clean_steps
 
 
 class Tracker(Protocol):
@@ -27,7 +27,8 @@ class Tracker(Protocol):
 
     def initial_state(self, targets: Targets) -> State: ...
 
-    def step(self, targets: Targets, dt: float | torch.Tensor | None = None) -> tuple[State, StepDiagnostics]: ...
+    def step(self, targets: Targets, dt: float | torch.Tensor | None = None,
+             checked: bool = False) -> tuple[State, StepDiagnostics]: ...
 
 
 def run_parts(tracker: Tracker, parts: Iterable[TargetSequence], time: torch.Tensor, initial: State | None = None,
@@ -61,8 +62,9 @@ def run_parts(tracker: Tracker, parts: Iterable[TargetSequence], time: torch.Ten
 
                     bar = tqdm(total=T, desc="tracking", unit="step", leave=False, delay=1.0)
             buffer = TrajectoryBuffer(part.time, *last) if last is not None else None
+            checked = clean_steps(part.position, part.linear_velocity, part.rotation, part.angular_velocity).tolist()
             for k in range(len(part)):
-                last = tracker.step(part[k], steps(done + k))
+                last = tracker.step(part[k], steps(done + k), checked[k])
                 if buffer is None:
                     buffer = Trajectory.preallocated(part.time, *last)
                 buffer.put(*last)

@@ -134,7 +134,10 @@ class Trajectory:
 class TrajectoryBuffer:
     """A run's trajectory filled step by step into tensors allocated once ([T,...] per field): memory
     is the trajectory's size, not a few tensor objects per step (which, for an hour at 100 Hz, weigh
-    several times the numbers they hold)."""
+    several times the numbers they hold). Steps are written CHUNK at a time, one stacked copy per
+    field: fifteen indexed writes a step cost more than a small batch's whole integration."""
+
+    CHUNK = 64
 
     def __init__(self, time: torch.Tensor, state: State, diagnostics: StepDiagnostics):
         T = time.shape[0]
@@ -144,20 +147,31 @@ class TrajectoryBuffer:
         self.per_subject = {name: empty(getattr(diagnostics, name)) for name in PER_SUBJECT}
         self.per_batch = {name: torch.empty(T, dtype=torch.float64) for name in PER_BATCH}
         self.done = 0
+        self._pending: list[tuple] = []  # the steps put and not written yet: each step's own tensors
+        self._written = 0
 
     def put(self, state: State, diagnostics: StepDiagnostics) -> None:
-        """Append a step."""
-        k = self.done
-        for name, x in vars(state).items():
-            self.states[name][k] = x
-        for name in PER_SUBJECT:
-            self.per_subject[name][k] = getattr(diagnostics, name)
-        for name in PER_BATCH:
-            self.per_batch[name][k] = getattr(diagnostics, name)
+        """Append a step. Its tensors are held until written: the tracker never writes into them."""
+        self._pending.append((*vars(state).values(), *(getattr(diagnostics, name) for name in PER_SUBJECT),
+                              *(getattr(diagnostics, name) for name in PER_BATCH)))
         self.done += 1
+        if len(self._pending) == self.CHUNK:
+            self._write()
+
+    def _write(self) -> None:
+        if not self._pending:
+            return
+        rows, fields = slice(self._written, self.done), list(zip(*self._pending))
+        buffers = [*self.states.values(), *self.per_subject.values()]
+        for buffer, values in zip(buffers, fields):
+            torch.stack(values, out=buffer[rows])
+        for buffer, values in zip(self.per_batch.values(), fields[len(buffers):]):
+            buffer[rows] = torch.tensor(values, dtype=torch.float64)
+        self._pending, self._written = [], self.done
 
     def trajectory(self, interrupted: bool = False) -> Trajectory:
         """The steps put so far as a Trajectory (views of the buffers)."""
+        self._write()
         done = slice(0, self.done)
         diagnostics = {name: x[done] for name, x in {**self.per_subject, **self.per_batch}.items()}
         s = {name: x[done] for name, x in self.states.items()}

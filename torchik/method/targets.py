@@ -87,6 +87,21 @@ def _orthonormal_tolerance(tolerance: float, dtype: torch.dtype) -> float:
     return max(tolerance, 100 * torch.finfo(dtype).eps)  # float32 rounding
 
 
+def clean_steps(position, linear_velocity, rotation, angular_velocity,
+                orthonormal_tolerance: float = 1e-9) -> torch.Tensor:
+    """[T] bool: True at the steps whose targets `clean_targets` would leave as they are, for targets
+    over time (fields as Targets with a leading T): a sequence checked at once, which its steps then
+    skip (`DynamicalIK.step`'s `checked`)."""
+    T = rotation.shape[0]
+    if rotation.dim() != 5 or rotation.shape[-2:] != (3, 3) or any(
+            x.dim() != 4 or x.shape[0] != T or x.shape[-1] != 3 or x.dtype != rotation.dtype or x.device != rotation.device
+            for x in (position, linear_velocity, angular_velocity)):
+        return torch.zeros(T, dtype=torch.bool)  # not targets over time: the steps check them and say why
+    largest = so3.gram_deviation(rotation).abs().flatten(1).amax(1) if rotation[0].numel() else rotation.new_zeros(T)
+    values = torch.cat((position, linear_velocity, angular_velocity), 2).flatten(1).sum(1)  # NaN, Inf: as _worst
+    return torch.add(largest, values, alpha=0.0) <= _orthonormal_tolerance(orthonormal_tolerance, rotation.dtype) / 3
+
+
 def already_clean(targets: Targets, orthonormal_tolerance: float = 1e-9) -> torch.Tensor:
     """A bool tensor: True where `clean_targets` would leave the targets as they are (every one
     finite, every rotation orthonormal to a third of orthonormal_tolerance), without a synchronisation."""
@@ -111,15 +126,21 @@ PROJECT_TOLERANCE = 1e-2  # ||R^T R - I|| (Frobenius) up to which a target rotat
 
 
 def clean_targets(targets: Targets, project_tolerance: float = PROJECT_TOLERANCE,
-                  orthonormal_tolerance: float = 1e-9) -> CleanTargets:
+                  orthonormal_tolerance: float = 1e-9, checked: bool = False) -> CleanTargets:
     """Drop non-finite targets for this step and project nearly orthonormal rotations onto SO(3).
 
     A rotation with `||R^T R - I|| > project_tolerance` (Frobenius) is not a rotation that noise
-    or rounding could explain: InputError, naming the subject and target.
+    or rounding could explain: InputError, naming the subject and target. checked: `clean_steps`
+    found these targets clean (finite, orthonormal to a third of orthonormal_tolerance): returned as
+    they are, without a check.
     """
     position, linear_velocity = targets.position, targets.linear_velocity
     rotation, angular_velocity = targets.rotation, targets.angular_velocity
     B, n_p, n_o = position.shape[0], position.shape[1], rotation.shape[1]
+    if checked:
+        nothing = _constant((B,), 0, position.device)
+        return CleanTargets(targets, _constant((B, n_p), True, position.device),
+                            _constant((B, n_o), True, position.device), nothing, nothing, True)
     eye = so3.identity(rotation.dtype, rotation.device)
     orthonormal_tolerance = _orthonormal_tolerance(orthonormal_tolerance, rotation.dtype)
     # one number for the usual case, one synchronisation

@@ -151,10 +151,13 @@ class DynamicalIK:
 
     # ------------------------------------------------------------------ the step
     @torch.inference_mode()  # no autograd bookkeeping: at small batches it is a fifth of the step
-    def step(self, targets: Targets, dt: float | torch.Tensor | None = None) -> tuple[State, StepDiagnostics]:
+    def step(self, targets: Targets, dt: float | torch.Tensor | None = None,
+             checked: bool = False) -> tuple[State, StepDiagnostics]:
         """Advance by dt (default: the nominal dt; a scalar or [B]) towards `targets`.
 
-        targets: Targets with n_p position and n_o orientation targets, batch B.
+        targets: Targets with n_p position and n_o orientation targets, batch B. checked: every
+        target is known finite and every rotation orthonormal (`targets.clean_steps`, which a run
+        applies to a whole sequence at once), so the step does not check them again.
         Returns the new State and the step's StepDiagnostics. Their tensors are inference tensors
         (torch.inference_mode): use them freely, but clone one before using it in autograd.
         """
@@ -171,7 +174,7 @@ class DynamicalIK:
         if isinstance(dt, torch.Tensor):
             dt, new_segment = self._split_at_gaps(dt, targets)
             q = self._require_state()
-        clean = clean_targets(targets)
+        clean = clean_targets(targets, checked=checked)
         at = self._history.evaluate(q, self._rotation, clean, dt, positions=not structure.rotations_only)
 
         kinematics_start = time.perf_counter()

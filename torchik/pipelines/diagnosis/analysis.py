@@ -116,20 +116,25 @@ class Analysis:
             if at_limits:
                 free = torch.cat((torch.ones(len(self.sample), 6, dtype=torch.bool), ~self.active[self.sample, b]), -1)
                 J = J * free[:, None, :].to(J.dtype)  # [S,R,6+n]
-                A = inverse_normal(J)
+                held = ~free.all(-1)  # A changes only at the samples with a joint at a limit: a few, mostly
+                A = A.clone()
+                A[held] = inverse_normal(J[held])
             M = torch.eye(J.shape[-2], dtype=J.dtype) - J @ (A @ J.transpose(-1, -2))
             cache[at_limits] = M * self.rows[:, b, :, None].to(J.dtype)
         return cache[at_limits]
 
-    def project(self, b: int, X: torch.Tensor, J: torch.Tensor | None = None, A: torch.Tensor | None = None) -> torch.Tensor:
+    def project(self, b: int, X: torch.Tensor, J: torch.Tensor | None = None, A: torch.Tensor | None = None,
+                samples: torch.Tensor | None = None) -> torch.Tensor:
         """M X = X - J A J^T X for subject b, X [...,S,R,k] (rows as J's) -> the same, zero on the
-        rows of missing targets. J [S,R,C], A [S,C,C]: others than the analysis' (joints.py)."""
+        rows of missing targets. J [S,R,C], A [S,C,C]: others than the analysis' (joints.py);
+        samples: a mask or index of the sample times that X, J and A hold (default all S)."""
         J = self.J[:, b] if J is None else J
         A = self.A[:, b] if A is None else A
+        rows = self.rows[:, b] if samples is None else self.rows[samples, b]
         # the candidates' columns side by side, [S,R,N k]: one product per sample time, not per candidate
         (S, R, k), lead = X.shape[-3:], X.shape[:-3]
         Y = X.reshape(-1, S, R, k).permute(1, 2, 0, 3).reshape(S, R, -1)
-        Y = (Y - J @ (A @ (J.transpose(-1, -2) @ Y))) * self.rows[:, b, :, None].to(X.dtype)
+        Y = (Y - J @ (A @ (J.transpose(-1, -2) @ Y))) * rows[..., None].to(X.dtype)
         return Y.reshape(S, R, -1, k).permute(2, 0, 1, 3).reshape(*lead, S, R, k)
 
 

@@ -302,13 +302,14 @@ def _limits(analysis, b, train, test, target=None) -> list[Effect]:
         below = [name for name, m in zip(analysis.links, mask[:, j].tolist()) if m]
         if not below:
             continue
-        # M without the joint's column: at its limit it cannot move
-        Jj = J.clone()
-        Jj[..., 6 + j] = 0.0
-        Aj = inverse_normal(Jj)
         E = _rows(analysis, below)
         G = E @ analysis.joint_axes[:, b, j][..., None]  # [S,R,1]
-        MG = analysis.project(b, G, Jj, Aj)
+        # M without the joint's column at the samples where it is at its limit (it cannot move); only
+        # those samples are fitted, the others' M G is multiplied by zero
+        Jj = J[at].clone()
+        Jj[..., 6 + j] = 0.0
+        MG = torch.zeros_like(G)
+        MG[at] = analysis.project(b, G[at], Jj, inverse_normal(Jj), at)
         q = (MG.transpose(-1, -2) @ MG).flatten()
         at = at & (q > REGULARISE * float(q[at].median())) if bool(at.any()) else at
         theta = (MG.transpose(-1, -2) @ r[..., None]).flatten() / q.clamp(min=1e-12)

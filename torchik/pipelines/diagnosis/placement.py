@@ -75,17 +75,17 @@ def project_held(analysis: Analysis, b: int, links: list[int], blocks: torch.Ten
     k = analysis.sample
     out = project_blocks(analysis, b, links, blocks).clone()
     held = analysis.active[k, b][None] & adjacent_joints(analysis)[links][:, None]  # [N,S,n]
-    pick = torch.nonzero(held.flatten(1).any(-1))[:, 0]
-    if not len(pick):
+    # M changes only at the (candidate, sample) pairs with a joint held: a few of the N S, mostly
+    cand, at = torch.nonzero(held.any(-1), as_tuple=True)  # [P] each
+    if not len(cand):
         return out
-    free = torch.cat((torch.ones(len(pick), len(k), 6, dtype=torch.bool), ~held[pick]), -1)  # [H,S,6+n]
-    J = analysis.J[:, b][None] * free[:, :, None, :].to(analysis.J.dtype)  # [H,S,R,6+n]
-    rows = torch.stack([torch.arange(3) + 3 + 3 * links[n] for n in pick.tolist()])  # [H,3]: each link's rows
-    J_own = torch.gather(J, 2, rows[:, None, :, None].expand(-1, len(k), -1, J.shape[-1]))  # [H,S,3,6+n]
-    columns = -(J @ (inverse_normal(J) @ J_own.transpose(-1, -2)))  # [H,S,R,3]: M's columns of the link's rows
-    columns.scatter_add_(2, rows[:, None, :, None].expand(-1, len(k), -1, 3),
-                         torch.eye(3, dtype=J.dtype).expand(len(pick), len(k), 3, 3))
-    out[pick] = (columns * analysis.rows[:, b, :, None].to(J.dtype)) @ blocks[pick]
+    free = torch.cat((torch.ones(len(cand), 6, dtype=torch.bool), ~held[cand, at]), -1)  # [P,6+n]
+    J = analysis.J[at, b] * free[:, None, :].to(analysis.J.dtype)  # [P,R,6+n]
+    rows = 3 + 3 * torch.as_tensor(links)[cand, None] + torch.arange(3)  # [P,3]: each candidate link's rows
+    J_own = torch.gather(J, 1, rows[..., None].expand(-1, -1, J.shape[-1]))  # [P,3,6+n]
+    columns = -(J @ (inverse_normal(J) @ J_own.transpose(-1, -2)))  # [P,R,3]: M's columns of the link's rows
+    columns.scatter_add_(1, rows[..., None].expand(-1, -1, 3), torch.eye(3, dtype=J.dtype).expand(len(cand), 3, 3))
+    out[cand, at] = (columns * analysis.rows[at, b, :, None].to(J.dtype)) @ blocks[cand, at]
     return out
 
 
