@@ -48,6 +48,27 @@ def test_write_generates_urdfs_for_a_subject_and_keeps_existing_ones(tmp_path, c
     assert (tmp_path / "human66.urdf").read_text() != written  # subject 1 is shorter than 1.9 m
 
 
+def test_the_command_exits_without_teardown_after_its_exit_handlers_and_output():
+    """`torchik` ends by os._exit (torch's teardown costs half a second): exit handlers still run,
+    what was printed arrives, the exit code is main's, and a thread still working is waited for."""
+    script = ("import atexit, sys, threading, time\n"
+              "atexit.register(lambda: print('handler ran', flush=True))\n"
+              "if sys.argv[1] == 'thread':\n"
+              "    threading.Thread(target=lambda: (time.sleep(0.5), print('thread done', flush=True))).start()\n"
+              "sys.argv = ['torchik', *sys.argv[2:]]\n"
+              "from torchik.cli import command\n"
+              "command()\n")
+    for thread in ("none", "thread"):
+        result = subprocess.run([sys.executable, "-c", script, thread, "models"], capture_output=True, text=True,
+                                timeout=120)
+        assert result.returncode == 0, result.stderr
+        assert "Human48: 48 DoF" in result.stdout and result.stdout.rstrip().endswith("handler ran")
+        assert ("thread done" in result.stdout) == (thread == "thread")
+    result = subprocess.run([sys.executable, "-c", script, "none", "models", "--height", "175"], capture_output=True,
+                            text=True, timeout=120)
+    assert result.returncode == 2 and "give metres" in result.stderr and "handler ran" in result.stdout
+
+
 def test_bad_input_exits_2_with_one_line():
     result = run("models", "--height", "175")
     assert result.returncode == 2

@@ -1,7 +1,5 @@
 """`python -m torchik` runs the command line, as `torchik` does."""
 
-import sys
+from .cli import command
 
-from .cli import main
-
-sys.exit(main())
+command()

@@ -9,8 +9,11 @@ which is handled as Ctrl-C (`track` has then written its outputs for the frames 
 from __future__ import annotations
 
 import argparse
+import atexit
+import os
 import signal
 import sys
+import threading
 
 from ..data import version
 from ..errors import TorchikError
@@ -65,3 +68,22 @@ def main(argv: list[str] | None = None) -> int:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
 
+
+
+def command() -> None:
+    """The `torchik` console command (and `python -m torchik`): `main`, then the process ends without
+    the interpreter's teardown when nothing else runs. Unloading torch and freeing what its modules
+    hold takes about half a second on this project's machine (0.45-0.5 s measured after `import torch`
+    alone, against 0.02 s for `os._exit`), after every output is written and closed. The exit
+    handlers (multiprocessing's, rerun's, logging's) still run and the standard streams are flushed;
+    with another thread still alive the usual exit waits for it."""
+    code = main()
+    if threading.active_count() > 1:
+        sys.exit(code)
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (BrokenPipeError, ValueError):  # a reader that closed the pipe; a stream main closed
+            pass
+    os._exit(code)
