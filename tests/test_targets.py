@@ -57,5 +57,11 @@ def test_a_sequence_checked_at_once_agrees_with_the_check_of_each_step():
     each = [(c.all_valid and not bool(c.projected.any())) for c in map(clean_targets, steps)]
     assert each == [True, False, False, False, True, True]
     assert clean_steps(*fields).tolist() == each
+    # a large batch's steps, checked a few at a time, as each step alone
+    large = [make(B=3000, n_o=23, seed=k) for k in range(8)]
+    large[6].rotation[2999, 22, 2, 2] = float("nan")
+    fields_large = [torch.stack([getattr(t, name) for t in large]) for name in vars(large[0])]
+    each_large = [c.all_valid for c in map(clean_targets, large)]
+    assert clean_steps(*fields_large).tolist() == each_large == [True] * 6 + [False, True]
     # not targets over time (a rotation field without its 3 x 3): none is taken as checked, the steps say why
     assert not clean_steps(fields[0], fields[1], fields[2][..., 0], fields[3]).any()

@@ -97,9 +97,16 @@ def clean_steps(position, linear_velocity, rotation, angular_velocity,
             x.dim() != 4 or x.shape[0] != T or x.shape[-1] != 3 or x.dtype != rotation.dtype or x.device != rotation.device
             for x in (position, linear_velocity, angular_velocity)):
         return torch.zeros(T, dtype=torch.bool)  # not targets over time: the steps check them and say why
-    largest = so3.gram_deviation(rotation).abs().flatten(1).amax(1) if rotation[0].numel() else rotation.new_zeros(T)
-    values = torch.cat((position, linear_velocity, angular_velocity), 2).flatten(1).sum(1)  # NaN, Inf: as _worst
-    return torch.add(largest, values, alpha=0.0) <= _orthonormal_tolerance(orthonormal_tolerance, rotation.dtype) / 3
+    tolerance = _orthonormal_tolerance(orthonormal_tolerance, rotation.dtype) / 3
+    # a few million entries at a time: the deviations of a large batch's part would weigh more than its rotations
+    chunk = max(1, (1 << 22) // max(1, rotation[0].numel()))
+    clean = []
+    for start in range(0, T, chunk):
+        R = rotation[start:start + chunk]
+        largest = so3.gram_deviation(R).abs().flatten(1).amax(1) if R[0].numel() else R.new_zeros(len(R))
+        values = torch.cat([x[start:start + chunk] for x in (position, linear_velocity, angular_velocity)], 2)
+        clean.append(torch.add(largest, values.flatten(1).sum(1), alpha=0.0) <= tolerance)  # NaN, Inf: as _worst
+    return torch.cat(clean) if clean else torch.zeros(0, dtype=torch.bool, device=rotation.device)
 
 
 def already_clean(targets: Targets, orthonormal_tolerance: float = 1e-9) -> torch.Tensor:
