@@ -114,14 +114,22 @@ class Analysis:
         if at_limits not in cache:
             J, A = self.J[:, b], self.A[:, b]
             if at_limits:
-                free = torch.cat((torch.ones(len(self.sample), 6, dtype=torch.bool), ~self.active[self.sample, b]), -1)
-                J = J * free[:, None, :].to(J.dtype)  # [S,R,6+n]
-                held = ~free.all(-1)  # A changes only at the samples with a joint at a limit: a few, mostly
-                A = A.clone()
-                A[held] = inverse_normal(J[held])
+                active = self.active[self.sample, b]  # [S,n]
+                held = active.any(-1)  # J and A change only at the samples with a joint at a limit: a few, mostly
+                J, A = J.clone(), A.clone()
+                J[held], A[held] = self.without(b, active[held], held)
             M = torch.eye(J.shape[-2], dtype=J.dtype) - J @ (A @ J.transpose(-1, -2))
             cache[at_limits] = M * self.rows[:, b, :, None].to(J.dtype)
         return cache[at_limits]
+
+    def without(self, b: int, held: torch.Tensor, samples: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Subject b's J at `samples` (a mask or index of the S sample times, P of them) without the
+        columns of the joints `held` [P,n] (those the tracker cannot move: at a limit), and its A:
+        ([P,R,6+n], [P,6+n,6+n]), for project(b, X, J, A, samples). Computed only where asked: a joint
+        is held at a few of the samples, mostly, and elsewhere the analysis' own J and A hold."""
+        free = torch.cat((torch.ones(len(held), 6, dtype=torch.bool), ~held), -1)  # [P,6+n]
+        J = self.J[samples, b] * free[:, None, :].to(self.J.dtype)
+        return J, inverse_normal(J)
 
     def project(self, b: int, X: torch.Tensor, J: torch.Tensor | None = None, A: torch.Tensor | None = None,
                 samples: torch.Tensor | None = None) -> torch.Tensor:

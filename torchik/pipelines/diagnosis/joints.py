@@ -27,7 +27,7 @@ import torch
 
 from ...errors import InputError
 from ...method import so3
-from .analysis import Analysis, inverse_normal
+from .analysis import Analysis
 from .effect import Effect, lowpass_blocks, score
 
 REGULARISE = 0.05
@@ -291,7 +291,6 @@ def _limits(analysis, b, train, test, target=None) -> list[Effect]:
         return out
     r = analysis.stacked_residual(b)
     mask = analysis.model.select(analysis.links).ancestor_mask  # [L,n]
-    J = analysis.J[:, b]
     for j in torch.nonzero(active.any(0)).flatten().tolist():
         if target not in (None, model.joint_names[j]):
             continue
@@ -306,10 +305,9 @@ def _limits(analysis, b, train, test, target=None) -> list[Effect]:
         G = E @ analysis.joint_axes[:, b, j][..., None]  # [S,R,1]
         # M without the joint's column at the samples where it is at its limit (it cannot move); only
         # those samples are fitted, the others' M G is multiplied by zero
-        Jj = J[at].clone()
-        Jj[..., 6 + j] = 0.0
         MG = torch.zeros_like(G)
-        MG[at] = analysis.project(b, G[at], Jj, inverse_normal(Jj), at)
+        held = (torch.arange(model.n_dof) == j).expand(int(at.sum()), -1)  # [P,n]: the joint, at each such sample
+        MG[at] = analysis.project(b, G[at], *analysis.without(b, held, at), at)
         q = (MG.transpose(-1, -2) @ MG).flatten()
         at = at & (q > REGULARISE * float(q[at].median())) if bool(at.any()) else at
         theta = (MG.transpose(-1, -2) @ r[..., None]).flatten() / q.clamp(min=1e-12)

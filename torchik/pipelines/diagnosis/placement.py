@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from ...method import so3
-from .analysis import Analysis, inverse_normal
+from .analysis import Analysis
 from .effect import ABOVE_NOISE, SIGNIFICANT, Effect, Score, combine, lowpass_blocks, replace, rotation_about, score, shift
 from .integral import agreement, vertical_turn
 
@@ -79,13 +79,11 @@ def project_held(analysis: Analysis, b: int, links: list[int], blocks: torch.Ten
     cand, at = torch.nonzero(held.any(-1), as_tuple=True)  # [P] each
     if not len(cand):
         return out
-    free = torch.cat((torch.ones(len(cand), 6, dtype=torch.bool), ~held[cand, at]), -1)  # [P,6+n]
-    J = analysis.J[at, b] * free[:, None, :].to(analysis.J.dtype)  # [P,R,6+n]
-    rows = 3 + 3 * torch.as_tensor(links)[cand, None] + torch.arange(3)  # [P,3]: each candidate link's rows
-    J_own = torch.gather(J, 1, rows[..., None].expand(-1, -1, J.shape[-1]))  # [P,3,6+n]
-    columns = -(J @ (inverse_normal(J) @ J_own.transpose(-1, -2)))  # [P,R,3]: M's columns of the link's rows
-    columns.scatter_add_(1, rows[..., None].expand(-1, -1, 3), torch.eye(3, dtype=J.dtype).expand(len(cand), 3, 3))
-    out[cand, at] = (columns * analysis.rows[at, b, :, None].to(J.dtype)) @ blocks[cand, at]
+    J, A = analysis.without(b, held[cand, at], at)
+    X = blocks.new_zeros(len(cand), J.shape[1], blocks.shape[-1])  # [P,R,k]: each candidate's G at that sample
+    rows = 3 + 3 * torch.as_tensor(links)[cand, None] + torch.arange(3)  # [P,3]: its link's orientation rows
+    X.scatter_(1, rows[..., None].expand(-1, -1, X.shape[-1]), blocks[cand, at])
+    out[cand, at] = analysis.project(b, X[None], J, A, at)[0]
     return out
 
 
