@@ -146,8 +146,15 @@ def sensor_integral(e: torch.Tensor, R: torch.Tensor, keep: torch.Tensor, time: 
                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """integrated's (C, int G, t) of a gyro's disagreement e [T,3] with its orientations R [T,3,3]
     (valid where keep [T]) in the sensor frame, G the bias' regressor there (the identity)."""
+    e_sensor, (G_sensor,) = in_sensor_frame(e, [R], R)
+    return integrated(e_sensor, G_sensor, keep, time, stride)
+
+
+def in_sensor_frame(e: torch.Tensor, G: list[torch.Tensor], R: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
+    """A gyro's disagreement e [T,3] and world-frame regressors G ([T,3,k] each) in its sensor's frame
+    (R [T,3,3] sensor to world)."""
     Rt = R.transpose(-1, -2)
-    return integrated((Rt @ e[..., None])[..., 0], Rt @ R, keep, time, stride)
+    return (Rt @ e[..., None])[..., 0], [Rt @ g for g in G]
 
 
 _RATIO = torch.logspace(-4.0, 4.0, SHARES - 2, dtype=torch.float64)  # A / (q t_K): either part may dominate
@@ -213,8 +220,7 @@ def quieter_frame(e: torch.Tensor, R: torch.Tensor, G: list[torch.Tensor], keep:
     (a reference's, a second fusion), which differs by the orientations' noise n, and e = -dn/dt + w x n
     = -R dn'/dt with n' = R^T n: its integral telescopes in the sensor frame, and in the world frame
     holds a random walk as large as n w (on a fast limb, several times the gyro's own noise)."""
-    Rt = R.transpose(-1, -2)
-    options = [("world", e, G), ("sensor", (Rt @ e[..., None])[..., 0], [Rt @ g for g in G])]
+    options = [("world", e, G), ("sensor", *in_sensor_frame(e, G, R))]
     frames = []
     for name, e_F, G_F in options:
         C, GI, t = integrated(e_F, G_F[0], keep, time, stride)
