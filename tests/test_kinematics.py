@@ -198,6 +198,41 @@ def test_bad_input_says_what_was_expected(tmp_path):
         KinematicModel.from_urdf(two_parents)
 
 
+def test_the_parser_loaded_alone_reads_the_models_as_pytorch_kinematics_does():
+    """The URDF parser loaded without pytorch-kinematics' package (urdf._urdf_class) leaves the package
+    and matplotlib unimported, and gives the same trees as the parser imported through the package."""
+    import pickle
+    import subprocess
+    import sys
+
+    code = ("import pickle, sys\nfrom torchik.method.kinematics.urdf import load_tree\n"
+            "from torchik.method.models import human_urdf, icub_urdf_path\n"
+            "trees = [load_tree(human_urdf(48, None)), load_tree(human_urdf(66, None)), load_tree(icub_urdf_path())]\n"
+            "assert 'pytorch_kinematics' not in sys.modules and 'matplotlib' not in sys.modules, 'imported'\n"
+            "sys.stdout.buffer.write(pickle.dumps([t.__getstate__() for t in trees]))\n")
+    alone = pickle.loads(subprocess.run([sys.executable, "-c", code], capture_output=True, check=True).stdout)
+    import pytorch_kinematics  # noqa: F401  (from here on, the package's own parser)
+
+    from torchik.method.kinematics import urdf
+    from torchik.method.models import human_urdf, icub_urdf_path
+
+    urdf._urdf_class.cache_clear()
+    try:
+        assert urdf._urdf_class().__module__ == "pytorch_kinematics.urdf_parser_py.urdf"
+        trees = [urdf.load_tree(human_urdf(48, None)), urdf.load_tree(human_urdf(66, None)),
+                 urdf.load_tree(icub_urdf_path())]
+    finally:
+        urdf._urdf_class.cache_clear()
+    for a, tree in zip(alone, trees):
+        b = tree.__getstate__()
+        assert a.keys() == b.keys()
+        for key in a:
+            if isinstance(a[key], np.ndarray):
+                assert np.array_equal(a[key], b[key]), key
+            else:
+                assert a[key] == b[key], key
+
+
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 def test_cuda_matches_cpu():
     model = load_model("icub")
