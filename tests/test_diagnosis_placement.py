@@ -13,7 +13,8 @@ Properties:
   further, leaves it;
 - project_held and the projector at the limits, which recompute M only at the samples with a joint
   held, equal M built at every sample without the held joints' columns (a damped least-squares
-  solve by QR, not the normal equations' inverse).
+  solve by QR, not the normal equations' inverse);
+- a kind fitted alone (a refit) gives the candidates it has among all the kinds.
 """
 
 from __future__ import annotations
@@ -24,7 +25,9 @@ import pytest
 import torch
 
 from torchik.method.models import TRACKED_LINKS, load_model
+from torchik.pipelines.diagnosis import placement
 from torchik.pipelines.diagnosis.analysis import analyse
+from torchik.pipelines.diagnosis.effect import halves
 from torchik.pipelines.diagnosis.placement import Misalignment, adjacent_joints, project_blocks, project_held
 from torchik.synthetic.scenarios import scenario
 
@@ -88,3 +91,18 @@ def test_the_held_projection_is_m_without_the_held_joints_at_every_sample(pushed
     every = pushed.active[pushed.sample, 0]  # the projector at the limits: every joint at its limit held
     Y = torch.randn(S, R, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
     assert torch.allclose(pushed.projector(0, at_limits=True) @ Y, _without(pushed.J[:, 0], every, Y) * mask, atol=1e-9)
+
+
+@pytest.mark.parametrize("kind", placement.KINDS)
+def test_a_kind_fitted_alone_is_the_same_as_among_all(pushed, kind):
+    """A refit asks for one kind (Subject.refit): the others are not fitted, and its candidates are
+    those it has among all, to the digit."""
+    train, test = halves(pushed.time)
+    every = placement.fit(pushed, 0, train, test)
+    alone = placement.fit(pushed, 0, train, test, kinds=(kind,))
+    assert {c.kind for c in alone} == {kind}
+    among = [c for c in every if c.kind == kind]
+    assert [c.target for c in alone] == [c.target for c in among] and len(alone) == len(LINKS)
+    for a, b in zip(alone, among):
+        assert a.params == b.params and a.stderr == b.stderr and a.notes == b.notes
+        assert (a.fit is None) == (b.fit is None) and (a.fit is None or a.fit.score == b.fit.score)

@@ -87,14 +87,19 @@ def run_parts(tracker: Tracker, parts: Iterable[TargetSequence], time: torch.Ten
             bar.close()
 
 
+def nominal_steps(time: torch.Tensor, dt: float, dtype: torch.dtype | None = None) -> torch.Tensor:
+    """[T] bool: step k's gap time[k] - time[k-1] (in `dtype`, default time's) is dt to the time
+    stamps' rounding (the first step, which has none, is)."""
+    gaps = (time[1:] - time[:-1]).to(dtype or time.dtype)
+    rounding = 64 * torch.finfo(time.dtype).eps * float(time.abs().max()) if len(time) > 1 else 0.0
+    return torch.cat((torch.ones(1, dtype=torch.bool, device=time.device), (gaps - dt).abs() <= rounding))
+
+
 def time_steps(tracker: Tracker, time: torch.Tensor, B: int):
     """Step k's dt, a function of k: None (the nominal dt, which the step uses without checks or
     tensor arithmetic) where the time stamps' gap is the nominal one to their rounding, else the
     gap [B] (made when asked: a tensor per step held for the whole run would weigh more than the
     trajectory)."""
-    T, dtype = len(time), tracker.model.dtype
-    gaps = (time[1:] - time[:-1]).to(dtype)
-    rounding = 64 * torch.finfo(time.dtype).eps * float(time.abs().max()) if T > 1 else 0.0
-    nominal = [True] + ((gaps - tracker.dt).abs() <= rounding).tolist()
-    gaps = gaps.to(tracker.model.device)
+    nominal = nominal_steps(time, tracker.dt, tracker.model.dtype).tolist()
+    gaps = (time[1:] - time[:-1]).to(tracker.model.dtype).to(tracker.model.device)
     return lambda k: None if nominal[k] else gaps[k - 1].expand(B)

@@ -31,10 +31,12 @@ import torch
 from ...io.recording import Recording, angular_velocity_from_orientations
 from ...method import so3
 from ...method.kinematics import KinematicModel
+from ...method.sequence import nominal_steps
 from ...method.settings import TrackerSettings
 from ...method.state import State, TargetSequence, Trajectory
 from ...method.tracker import DynamicalIK
 from ..evaluation import link_motion
+from . import chunks
 from .series import central_difference, central_rate, simpson
 
 DEFAULT_GAIN = TrackerSettings.orientation_gain  # the tracker's K (1/s), from its one source
@@ -163,14 +165,31 @@ def sequence_of(recordings: Sequence[Recording], links, dtype=torch.float64) -> 
 
 
 def track(model: KinematicModel, recordings: Sequence[Recording], links, gain: float = DEFAULT_GAIN,
-          progress: bool = False, settle: float = 0.5) -> Trajectory:
-    """Track B recordings as one batch (the batched backend when B > 1), from a state at rest in the
-    first frame's posture: the tracker run for `settle` seconds on the first targets held still.
-    Started from the zero posture instead, a short recording would be mostly the transient."""
+          progress: bool = False, settle: float = 0.5, chunking: chunks.Chunking | None = None) -> Trajectory:
+    """Track B recordings as one batch (the batched backend when B > 1), each from a state at rest in
+    its first frame's posture: the tracker run for `settle` seconds on the first targets held still.
+    Started from the zero posture instead, a short recording would be mostly the transient. A
+    uniformly sampled recording is tracked in overlapping chunks as one batch (chunks.py), to the
+    run in one piece's states within chunks.HANDOVER, and in one piece where the chunks disagree
+    (which turns `chunking` off) or `chunking` is off."""
     sequence = sequence_of(recordings, links, model.dtype)
     dt = float(np.median(np.diff(recordings[0].time))) if len(recordings[0].time) > 1 else 0.01
+    split = chunks.plan(len(sequence), len(recordings), dt, gain, bool(nominal_steps(sequence.time, dt).all()))
+    if split is not None and (chunking is None or chunking.on):
+        stitched = split.stitch(settled_run(model, links, split.batch(sequence), dt, gain, progress, settle),
+                                sequence.time, gain)
+        if stitched is not None:
+            return stitched
+        if chunking is not None:
+            chunking.on = False
+    return settled_run(model, links, sequence, dt, gain, progress, settle)
+
+
+def settled_run(model: KinematicModel, links, sequence: TargetSequence, dt: float, gain: float, progress: bool,
+                 settle: float) -> Trajectory:
+    """`track`'s run of `sequence` [T,B,...] in one piece, after settling on its first targets."""
     tracker = DynamicalIK(model, links, position_gain=gain, orientation_gain=gain, dt=dt,
-                          backend="batched" if len(recordings) > 1 else "auto")
+                          backend="batched" if sequence.rotation.shape[1] > 1 else "auto")
     n = max(2, int(round(settle / dt)))
     first = sequence[0]
     still = lambda x: x[None].expand(n, *x.shape)  # noqa: E731
@@ -189,11 +208,13 @@ def reference_pose(recording: Recording) -> str | None:
 
 
 def analyse(model: KinematicModel, recordings: Sequence[Recording], links, trajectory: Trajectory | None = None,
-            gain: float = DEFAULT_GAIN, max_samples: int = 300, progress: bool = False) -> Analysis:
-    """Track (unless `trajectory` is given) and compute the residuals of module docstring."""
+            gain: float = DEFAULT_GAIN, max_samples: int = 300, progress: bool = False,
+            chunking: chunks.Chunking | None = None) -> Analysis:
+    """Track (unless `trajectory` is given; `chunking` as `track`) and compute the residuals of
+    module docstring."""
     links = tuple(links)
     if trajectory is None:
-        trajectory = track(model, recordings, links, gain, progress)
+        trajectory = track(model, recordings, links, gain, progress, chunking=chunking)
     seq = sequence_of(recordings, links, model.dtype)
     time = seq.time
     R_hat, w_hat = link_motion(model, trajectory, links)

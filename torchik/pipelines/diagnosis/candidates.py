@@ -26,8 +26,8 @@ def candidates(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tens
     out: list[Effect] = []
     if wanted & {"gyro_bias", "gyro_scale", "stream_delay"}:
         out += gyro.fit(analysis, b, train, test, derived, target=target)
-    if wanted & {"misalignment", "sensor_delay", "heading_drift"}:
-        out += placement.fit(analysis, b, train, test, derived, target=target)
+    if wanted & set(placement.KINDS):
+        out += placement.fit(analysis, b, train, test, derived, target=target, kinds=wanted)
     if "static_pose" in wanted:
         out += posture.fit(analysis, b, train, test, urdf, target=target)
     if wanted & {"missing_dof", "joint_limit"}:

@@ -142,7 +142,7 @@ def variants(s: Subject, kept: Sequence[Effect]) -> list[Variant]:
         recording, urdf = without(*s.source, kept, effect)
         model = KinematicModel.from_urdf(urdf, name=s.model.name, dtype=s.model.dtype) if effect.model_effect \
             else s.model
-        out.append((s, effect, Subject(recording, urdf, model)))
+        out.append((s, effect, Subject(recording, urdf, model, chunking=s.chunking)))
     return out
 
 

@@ -183,7 +183,7 @@ def candidates(s: Subject, kinds, taken: list[Effect], gain: float) -> list[Effe
     if not found:
         return []
     s.tried |= {(c.kind, c.summary(), kept) for c in found}
-    variants = [Subject(c.correct(s.recording), s.urdf, s.model) for c in found]
+    variants = [Subject(c.correct(s.recording), s.urdf, s.model, chunking=s.chunking) for c in found]
     analyse_subjects(variants, analysis.links, gain, False, VARIANT_SAMPLES)
     test = halves(analysis.time)[1]
     y = chordal_residual(analysis, b)[test]

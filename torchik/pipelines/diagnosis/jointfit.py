@@ -149,7 +149,7 @@ def _rebuild(s: Subject, effects: Sequence[Effect]) -> Subject:
     for e in effects:
         if not e.model_effect:
             recording = e.correct(recording)
-    return Subject(recording, s.urdf, s.model)
+    return Subject(recording, s.urdf, s.model, chunking=s.chunking)
 
 
 def residual(analysis: Analysis, b: int, used: torch.Tensor, scale: torch.Tensor | None = None

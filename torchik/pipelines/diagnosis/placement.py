@@ -26,7 +26,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Collection
 
 import numpy as np
 import torch
@@ -36,6 +36,7 @@ from .analysis import Analysis
 from .effect import ABOVE_NOISE, SIGNIFICANT, Effect, Score, combine, lowpass_blocks, replace, rotation_about, score, shift
 from .integral import agreement, vertical_turn
 
+KINDS = ("misalignment", "sensor_delay", "heading_drift")  # the candidates fit() makes
 MAX_DELAY = 0.25  # s: a sensor later than this on the others is no delay but a different recording
 MAX_DRIFT = 5.0  # deg/s: heading drift of inertial sensors is a fraction of this
 MAX_MISALIGNMENT = 45.0  # deg: the most a strap or a marker cluster turns a sensor on its segment
@@ -285,11 +286,12 @@ class HeadingDrift(Effect):
 
 
 def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, derived: torch.Tensor | None = None,
-        target: str | None = None) -> list[Effect]:
-    """Misalignment, sensor-delay and heading-drift candidates for every link of subject b; those
-    the data cannot identify without a fit (their notes say why). derived [L]: links whose angular
-    velocity is computed from the orientations (default: analysis.derived), whose drift is fitted
-    on the orientations alone. target: only that link's candidates."""
+        target: str | None = None, kinds: Collection[str] = KINDS) -> list[Effect]:
+    """Misalignment, sensor-delay and heading-drift candidates (those of `kinds`) for every link of
+    subject b; those the data cannot identify without a fit (their notes say why). derived [L]:
+    links whose angular velocity is computed from the orientations (default: analysis.derived),
+    whose drift is fitted on the orientations alone. target: only that link's candidates. Each kind
+    is fitted on its own: one asked alone (a refit) is the same as among all."""
     k, time = analysis.sample, analysis.time
     derived = analysis.derived[b] if derived is None else derived
     t0 = float(time[0])
@@ -301,25 +303,33 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
     tr, te = (ok[:, usable] & train[:, None]).T, (ok[:, usable] & test[:, None]).T  # [N,T]
     R_hat = analysis.R_hat[k, b][:, usable].transpose(0, 1)  # [N,S,3,3]
     w_hat = analysis.w_hat[k, b][:, usable].transpose(0, 1)  # [N,S,3]
+    none = [None] * len(usable)
     misalignments = [_held_or_free(*fits) for fits in zip(fit_linear(analysis, b, usable, R_hat, tr, te), fit_projected(
-        analysis, b, project_held(analysis, b, usable, R_hat), R_hat.transpose(-1, -2) @ R_hat, tr, te))]
-    delays = fit_linear(analysis, b, usable, -w_hat[..., None], tr, te)
-    drifts = _drift(analysis, b, usable, tr, te, derived, train, test)
+        analysis, b, project_held(analysis, b, usable, R_hat), R_hat.transpose(-1, -2) @ R_hat, tr, te))] \
+        if "misalignment" in kinds else none
+    delays = fit_linear(analysis, b, usable, -w_hat[..., None], tr, te) if "sensor_delay" in kinds else none
+    drifts = _drift(analysis, b, usable, tr, te, derived, train, test) if "heading_drift" in kinds else none
     out: list[Effect] = []
     for i, mis, delay, head in zip(usable, misalignments, delays, drifts):
         name = analysis.links[i]
-        if not mis.identified.shape[1]:
+        if mis is None:
+            pass
+        elif not mis.identified.shape[1]:
             out.append(Misalignment("misalignment", name, notes=UNOBSERVABLE))
         else:
             out.append(Misalignment("misalignment", name, dict(rotation_vector=mis.theta.tolist(),
                                                                identified=mis.identified.T.tolist()),
                                     dict(rotation_vector=mis.cov.diagonal().clamp(min=0).sqrt().tolist()),
                                     mis.identified.shape[1], mis.fit, _unidentified(mis, 3)))
-        if not delay.identified.shape[1]:
+        if delay is None:
+            pass
+        elif not delay.identified.shape[1]:
             out.append(SensorDelay("sensor_delay", name, notes=UNOBSERVABLE))
         else:
             out.append(SensorDelay("sensor_delay", name, dict(delay=float(delay.theta[0])),
                                    dict(delay=float(delay.cov[0, 0].clamp(min=0).sqrt())), 1, delay.fit))
+        if head is None:
+            continue
         if not head.identified.shape[1]:
             out.append(HeadingDrift("heading_drift", name, notes=UNOBSERVABLE))
         else:

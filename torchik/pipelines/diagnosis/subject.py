@@ -11,6 +11,7 @@ from ...method.kinematics import KinematicModel
 from ...method.state import Trajectory
 from .analysis import Analysis, analyse
 from .candidates import candidates
+from .chunks import Chunking
 from .effect import Effect, halves
 
 
@@ -36,6 +37,7 @@ class Subject:
     rounds: int = 0  # the loop's rounds that added effects to it
     deferred: set = field(default_factory=set)  # (kind, target) taken back from a round with others: tried alone
     tried: set = field(default_factory=set)  # (kind, candidate, flips and swaps kept then) re-tracked (frames.py)
+    chunking: Chunking = field(default_factory=Chunking)  # shared with the variants made from it
 
     @property
     def effects(self) -> list[Effect]:
@@ -85,10 +87,12 @@ def analyse_subjects(subjects: list[Subject], links, gain: float, progress: bool
     for s in subjects:
         groups.setdefault(id(s.model), []).append(s)
     for group in groups.values():
+        chunking = Chunking(all(s.chunking.on for s in group))
         analysis = analyse(group[0].model, [s.recording for s in group], links, gain=gain, progress=progress,
-                           max_samples=max_samples)
+                           max_samples=max_samples, chunking=chunking)
         for b, s in enumerate(group):
             s.analysis = (analysis, b)
+            s.chunking.on = s.chunking.on and chunking.on
 
 
 def trajectory_of(analysis: Analysis, b: int) -> Trajectory:
