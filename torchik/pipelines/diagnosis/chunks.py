@@ -28,6 +28,7 @@ from ...method.state import TargetSequence, Trajectory
 
 FORGET = 1e-12  # what a chunk keeps of its start's error once its own samples begin
 HANDOVER = 1e-9  # the most two chunks' configurations may differ where one takes over (m, rad)
+ROUNDINGS = 64  # ... or this many times the dtype's rounding, where that is more (float32)
 BATCH = 16  # chunks times subjects aimed at: on this project's 2-core CPU a step of 16 costs about 1.5 of one
 SLOWEST = 0.99  # a decay slower than this per step would need warm-ups of thousands of steps
 
@@ -67,10 +68,13 @@ class Chunks:
     def stitch(self, run: Trajectory, time: torch.Tensor, gain: float) -> Trajectory | None:
         """The chunks' trajectory [length, C B, ...] as the recording's [T, B, ...] at `time` [T], each
         sample from the chunk that owns it; None where two chunks' configurations differ by more than
-        HANDOVER at a hand-over, or their velocities by more than gain (1/s) times that (the velocity
-        corrects the configuration's error at that rate), or either is not finite there."""
+        HANDOVER (or ROUNDINGS roundings) at a hand-over, or their velocities by more than gain (1/s)
+        times that (the velocity corrects the configuration's error at that rate), or either is not
+        finite there."""
         C = self.count
         B = run.joint_positions.shape[1] // C
+        # in float32 the two runs' roundings differ by a few units of the last place, not less
+        tolerance = max(HANDOVER, ROUNDINGS * torch.finfo(run.joint_positions.dtype).eps)
         states = dict(base_position=run.base_position, base_rotation=run.base_rotation,
                       joint_positions=run.joint_positions, velocity=run.velocity)
         for c in range(1, C):
@@ -79,7 +83,7 @@ class Chunks:
                 this = x[frame - self.starts[c], c * B:(c + 1) * B]
                 before = x[frame - self.starts[c - 1], (c - 1) * B:c * B]
                 gap = (this - before).abs().max()
-                if not bool(torch.isfinite(gap)) or float(gap) > HANDOVER * (gain if name == "velocity" else 1.0):
+                if not bool(torch.isfinite(gap)) or float(gap) > tolerance * (gain if name == "velocity" else 1.0):
                     return None
 
         def own(x: torch.Tensor, per_subject: bool = True) -> torch.Tensor:
