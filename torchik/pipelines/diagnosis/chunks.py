@@ -29,7 +29,7 @@ from ...method.state import TargetSequence, Trajectory
 FORGET = 1e-12  # what a chunk keeps of its start's error once its own samples begin
 HANDOVER = 1e-9  # the most two chunks' configurations may differ where one takes over (m, rad)
 ROUNDINGS = 64  # ... or this many times the dtype's rounding, where that is more (float32)
-BATCH = 16  # chunks times subjects aimed at: on this project's 2-core CPU a step of 16 costs about 1.5 of one
+BATCH = 16  # chunks times subjects aimed at: on this project's 2-core CPU a step of 16 costs about twice one's
 SLOWEST = 0.99  # a decay slower than this per step would need warm-ups of thousands of steps
 
 
