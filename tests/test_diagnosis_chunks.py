@@ -79,6 +79,7 @@ def test_chunks_that_disagree_where_one_hands_over_give_the_run_in_one_piece(wal
     refuses them, and track returns the run in one piece, exactly."""
     model, recordings = walks
     monkeypatch.setattr(chunks, "FORGET", 0.3)
+    monkeypatch.setattr(chunks, "FEWEST", 1)
     split = chunks.plan(len(recordings[0].time), 2, 0.02, analysis.DEFAULT_GAIN, True)
     assert split is not None and split.warm_up == 3
     sequence = analysis.sequence_of(recordings, LINKS, model.dtype)
@@ -94,6 +95,7 @@ def test_once_its_chunks_disagree_a_subject_is_tracked_in_one_piece(walks, monke
     costs half a run where the tracker does not forget its start); a fresh one tries."""
     model, recordings = walks
     monkeypatch.setattr(chunks, "FORGET", 0.3)
+    monkeypatch.setattr(chunks, "FEWEST", 1)
     runs, settled_run = [], analysis.settled_run
     monkeypatch.setattr(analysis, "settled_run", lambda model, links, sequence, *rest: runs.append(
         sequence.rotation.shape[1]) or settled_run(model, links, sequence, *rest))
@@ -110,26 +112,50 @@ def test_once_its_chunks_disagree_a_subject_is_tracked_in_one_piece(walks, monke
 
 @pytest.mark.parametrize("steps", [100, 400, 601, 1200, 7200])
 @pytest.mark.parametrize("subjects", [1, 3, 7])
-@pytest.mark.parametrize("rate", [50.0, 120.0, 240.0])
+@pytest.mark.parametrize("rate", [20.0, 25.0, 50.0, 120.0, 240.0])
 def test_the_chunks_tile_the_recording_each_after_its_warm_up(steps, subjects, rate):
+    """Every sample is owned by one chunk, which tracked it after at least its warm-up, and keeps
+    at least as many as it warms up on; the warm-up leaves FORGET of the start (at least FEWEST steps:
+    at 20 Hz, K dt = 1 and the linear decay would say one)."""
     split = chunks.plan(steps, subjects, 1 / rate, 20.0, True)
-    decay = 1 - 20.0 / rate
+    decay = abs(1 - 20.0 / rate)
+    warm_up = max(chunks.FEWEST, int(np.ceil(np.log(chunks.FORGET) / np.log(decay))) if decay > 0 else 1)
     if split is None:
-        warm_up = np.ceil(np.log(chunks.FORGET) / np.log(decay))
         assert steps < 3 * warm_up or subjects * 2 > chunks.BATCH or decay >= chunks.SLOWEST
         return
-    assert decay ** split.warm_up <= chunks.FORGET < decay ** (split.warm_up - 1)
+    assert split.warm_up == warm_up and (decay == 0 or decay ** warm_up <= chunks.FORGET)
     assert split.owned[0] == 0 and split.owned[-1] == steps and split.starts[0] == 0
-    assert split.count * subjects <= chunks.BATCH + subjects - 1
+    assert 2 <= split.count and split.count * subjects <= chunks.BATCH + subjects - 1
     for c, start in enumerate(split.starts):
         assert 0 <= start and start + split.length <= steps
-        assert split.owned[c] < split.owned[c + 1] <= start + split.length  # owns samples it tracked
+        assert split.owned[c + 1] - split.owned[c] >= split.warm_up  # as many as it warms up on
+        assert split.owned[c + 1] <= start + split.length  # it tracked what it owns
         if c:
-            assert split.owned[c] - start >= split.warm_up  # after its warm-up
-            assert split.owned[c + 1] - split.owned[c] >= split.warm_up  # at least as many as it warms up on
+            assert split.owned[c] - start == split.warm_up  # after its warm-up
+            assert split.owned[c] <= split.starts[c - 1] + split.length  # the one before it tracked the hand-over
 
 
 def test_a_recording_sampled_unevenly_or_too_fast_for_the_gain_is_tracked_in_one_piece():
     assert chunks.plan(1200, 1, 0.01, 20.0, nominal=False) is None  # a step of its own dt
     assert chunks.plan(1200, 1, 0.1, 20.0, True) is None  # K dt = 2: |1 - K dt| = 1, nothing decays
     assert chunks.plan(1200, chunks.BATCH, 0.01, 20.0, True) is None  # the batch is large enough
+
+
+def test_a_batch_whose_chunks_disagree_turns_off_its_subjects_and_no_others(walks, monkeypatch):
+    """analyse_subjects tracks a model's subjects as one batch: in chunks only if every one of them
+    still may be, and a batch whose chunks disagree turns off its own subjects, not those it did
+    not try."""
+    from torchik.pipelines.diagnosis.subject import Subject, analyse_subjects
+
+    model, recordings = walks
+    other = load_model("human48")  # another model: a batch of its own
+    kept = Subject(recordings[0], "", model)
+    refused = Subject(recordings[1], "", model, chunking=chunks.Chunking(False))
+    tried = Subject(recordings[1], "", other)
+    monkeypatch.setattr(chunks, "FORGET", 0.3)
+    monkeypatch.setattr(chunks, "FEWEST", 1)
+    analyse_subjects([kept, refused, tried], LINKS, analysis.DEFAULT_GAIN, False, 20)
+    assert kept.chunking.on and not refused.chunking.on and not tried.chunking.on
+    monkeypatch.undo()
+    analyse_subjects([kept], LINKS, analysis.DEFAULT_GAIN, False, 20)  # now its chunks agree
+    assert kept.chunking.on

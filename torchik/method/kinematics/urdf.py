@@ -14,6 +14,7 @@ import functools
 import importlib.util
 import io
 import sys
+import threading
 from collections import deque
 from dataclasses import dataclass
 from functools import cached_property
@@ -92,6 +93,7 @@ class KinematicTree:
 
 
 PARSER = "torchik._urdf_parser_py"  # the name pytorch-kinematics' parser is loaded under
+_LOADING = threading.Lock()  # two threads building their first models load it once
 
 
 @functools.cache
@@ -101,11 +103,17 @@ def _urdf_class():
     which imports its IK solvers, SDF tools and matplotlib: 0.5-0.8 s on this project's 2-core
     machine, against 0.02 s for the parser (lxml, yaml), and a third of what building a model cost.
     The subpackage imports only itself (relative imports), so it loads the same under another name.
-    Where the package is imported already, its parser is used."""
+    Where the package was imported before the first model is built, its own parser is used."""
     if "pytorch_kinematics" in sys.modules:
         from pytorch_kinematics.urdf_parser_py.urdf import URDF
 
         return URDF
+    with _LOADING:
+        return _load_parser()
+
+
+def _load_parser():
+    """The URDF class of the parser loaded under PARSER (loaded now, unless it was)."""
     if PARSER not in sys.modules:
         package = importlib.util.find_spec("pytorch_kinematics")
         if package is None or not package.submodule_search_locations:
@@ -117,8 +125,9 @@ def _urdf_class():
         sys.modules[PARSER] = module
         try:
             spec.loader.exec_module(module)
-        except BaseException:
-            del sys.modules[PARSER]
+        except BaseException:  # nothing half-loaded stays for the next try
+            for name in [name for name in sys.modules if name == PARSER or name.startswith(PARSER + ".")]:
+                del sys.modules[name]
             raise
     return sys.modules[PARSER + ".urdf"].URDF
 

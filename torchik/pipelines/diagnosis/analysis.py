@@ -166,12 +166,14 @@ def sequence_of(recordings: Sequence[Recording], links, dtype=torch.float64) -> 
 
 def track(model: KinematicModel, recordings: Sequence[Recording], links, gain: float = DEFAULT_GAIN,
           progress: bool = False, settle: float = 0.5, chunking: chunks.Chunking | None = None) -> Trajectory:
-    """Track B recordings as one batch (the batched backend when B > 1), each from a state at rest in
-    its first frame's posture: the tracker run for `settle` seconds on the first targets held still.
-    Started from the zero posture instead, a short recording would be mostly the transient. A
-    uniformly sampled recording is tracked in overlapping chunks as one batch (chunks.py), to the
-    run in one piece's states within chunks.HANDOVER, and in one piece where the chunks disagree
-    (which turns `chunking` off) or `chunking` is off."""
+    """Track B recordings as one batch, each from a state at rest in its first frame's posture: the
+    tracker run for `settle` seconds on the first targets held still. Started from the zero posture
+    instead, a short recording would be mostly the transient. A uniformly sampled recording is
+    tracked in overlapping chunks as one batch (chunks.py) whose hand-overs agree within
+    chunks.HANDOVER, and in one piece where they do not (which turns `chunking` off) or `chunking`
+    is off. The batched backend solves every run of more than one subject or chunk (the chunks give
+    the batched run in one piece's states to about HANDOVER); one subject in one piece uses PIQP
+    ("auto"), whose solutions differ from it by the solvers' tolerance (1e-7 on the joints)."""
     sequence = sequence_of(recordings, links, model.dtype)
     dt = float(np.median(np.diff(recordings[0].time))) if len(recordings[0].time) > 1 else 0.01
     split = chunks.plan(len(sequence), len(recordings), dt, gain, bool(nominal_steps(sequence.time, dt).all()))

@@ -31,6 +31,7 @@ HANDOVER = 1e-9  # the most two chunks' configurations may differ where one take
 ROUNDINGS = 64  # ... or this many times the dtype's rounding, where that is more (float32)
 BATCH = 16  # chunks times subjects aimed at: on this project's 2-core CPU a step of 16 costs about twice one's
 SLOWEST = 0.99  # a decay slower than this per step would need warm-ups of thousands of steps
+FEWEST = 10  # warm-up steps at least: near K dt = 1 the linear decay says one, the tracker's large errors need more
 
 
 @dataclass
@@ -70,9 +71,12 @@ class Chunks:
         sample from the chunk that owns it; None where two chunks' configurations differ by more than
         HANDOVER (or ROUNDINGS roundings) at a hand-over, or their velocities by more than gain (1/s)
         times that (the velocity corrects the configuration's error at that rate), or either is not
-        finite there."""
+        finite there. The per-batch diagnostics (step_time, kinematics_time, qp_time) are the chunked
+        run's steps, each for all the chunks."""
         C = self.count
         B = run.joint_positions.shape[1] // C
+        assert not run.interrupted and len(run.time) == self.length and B * C == run.joint_positions.shape[1] \
+            and len(time) == self.owned[-1], "the chunks' run, whole, of the recording they were cut from"
         # in float32 the two runs' roundings differ by a few units of the last place, not less
         tolerance = max(HANDOVER, ROUNDINGS * torch.finfo(run.joint_positions.dtype).eps)
         states = dict(base_position=run.base_position, base_rotation=run.base_rotation,
@@ -100,16 +104,17 @@ class Chunks:
 def plan(steps: int, subjects: int, dt: float, gain: float, nominal: bool) -> Chunks | None:
     """How to split a run of `steps` samples of `subjects` subjects at the step dt with gain K (1/s)
     into chunks (None: in one piece). nominal: every step of the recording is dt (to rounding).
-    Chunks enough to bring the batch near BATCH, each keeping at least as many samples as it warms
-    up on (the last may keep more)."""
+    Chunks enough to bring the batch near BATCH (fewer where the last would keep too little), each
+    keeping at least as many samples as it warms up on."""
     decay = abs(1.0 - gain * dt)
     if not nominal or decay >= SLOWEST or subjects >= BATCH:
         return None
-    warm_up = max(1, math.ceil(math.log(FORGET) / math.log(decay))) if decay > 0 else 1
-    count = min(math.ceil(BATCH / subjects), steps // warm_up - 1)
-    if count < 2:
-        return None
-    length = -(-(steps + (count - 1) * warm_up) // count)
-    starts = tuple(min(c * (length - warm_up), steps - length) for c in range(count))
-    owned = (0, *(s + warm_up for s in starts[1:]), steps)
-    return Chunks(starts, owned, length, warm_up)
+    warm_up = max(FEWEST, math.ceil(math.log(FORGET) / math.log(decay)) if decay > 0 else 1)
+    for count in range(min(math.ceil(BATCH / subjects), steps // warm_up - 1), 1, -1):
+        length = -(-(steps + (count - 1) * warm_up) // count)
+        # each chunk starts where the one before it has `warm_up` samples left; the last ends at T
+        starts = (*(c * (length - warm_up) for c in range(count - 1)), steps - length)
+        owned = (0, *(s + warm_up for s in starts[1:]), steps)
+        if all(b - a >= warm_up for a, b in zip(owned, owned[1:])):  # rounding can leave the last too little
+            return Chunks(starts, owned, length, warm_up)
+    return None

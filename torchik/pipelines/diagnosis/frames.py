@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from .analysis import Analysis
+from .chunks import Chunking
 from .effect import Effect, halves, replace, score
 from .joints import joint_groups
 from .subject import Subject, analyse_subjects
@@ -183,7 +184,8 @@ def candidates(s: Subject, kinds, taken: list[Effect], gain: float) -> list[Effe
     if not found:
         return []
     s.tried |= {(c.kind, c.summary(), kept) for c in found}
-    variants = [Subject(c.correct(s.recording), s.urdf, s.model, chunking=s.chunking) for c in found]
+    # a flipped or swapped frame guessed wrong leaves residuals whose chunks disagree: not the subject's
+    variants = [Subject(c.correct(s.recording), s.urdf, s.model, chunking=Chunking(s.chunking.on)) for c in found]
     analyse_subjects(variants, analysis.links, gain, False, VARIANT_SAMPLES)
     test = halves(analysis.time)[1]
     y = chordal_residual(analysis, b)[test]

@@ -87,12 +87,14 @@ def analyse_subjects(subjects: list[Subject], links, gain: float, progress: bool
     for s in subjects:
         groups.setdefault(id(s.model), []).append(s)
     for group in groups.values():
-        chunking = Chunking(all(s.chunking.on for s in group))
+        tried = all(s.chunking.on for s in group)  # one subject's chunks refused keep its group whole
+        chunking = Chunking(tried)
         analysis = analyse(group[0].model, [s.recording for s in group], links, gain=gain, progress=progress,
                            max_samples=max_samples, chunking=chunking)
         for b, s in enumerate(group):
             s.analysis = (analysis, b)
-            s.chunking.on = s.chunking.on and chunking.on
+            if tried and not chunking.on:  # which subject's chunks disagreed the batch does not say
+                s.chunking.on = False
 
 
 def trajectory_of(analysis: Analysis, b: int) -> Trajectory:
