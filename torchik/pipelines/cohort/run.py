@@ -171,8 +171,9 @@ def start_forkserver() -> bool:
 
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return False
-    # pytorch_kinematics: the URDF parser, imported on first use (seconds)
-    preload = ["distributed", "pytorch_kinematics", "torchik.cohort.trial"]
+    # the URDF parser is loaded on first use (urdf._urdf_class, 0.02 s): not pytorch_kinematics, whose
+    # package would bring its IK solvers and matplotlib into every worker
+    preload = ["distributed", "torchik.pipelines.cohort.trial"]
     multiprocessing.get_context("forkserver").set_forkserver_preload(preload)
     main = threading.current_thread() is threading.main_thread()
     handler = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
@@ -185,9 +186,10 @@ def start_forkserver() -> bool:
 
 
 def _import_torchik() -> None:
-    import pytorch_kinematics  # noqa: F401
-
     import torchik.pipelines.cohort.trial  # noqa: F401
+    from torchik.method.kinematics.urdf import _urdf_class
+
+    _urdf_class()
 
 
 def _execute(client, batches: list[Batch], out: Path, run: str, rrd: bool, done: int, total: int, progress: bool,
