@@ -310,43 +310,50 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
     delays = fit_linear(analysis, b, usable, -w_hat[..., None], tr, te) if "sensor_delay" in kinds else none
     drifts = _drift(analysis, b, usable, tr, te, derived, train, test) if "heading_drift" in kinds else none
     out: list[Effect] = []
-    for i, mis, delay, head in zip(usable, misalignments, delays, drifts):
+    for i, mis, delay, head in zip(usable, misalignments, delays, drifts):  # per link: its kinds asked for
         name = analysis.links[i]
-        if mis is None:
-            pass
-        elif not mis.identified.shape[1]:
-            out.append(Misalignment("misalignment", name, notes=UNOBSERVABLE))
-        else:
-            out.append(Misalignment("misalignment", name, dict(rotation_vector=mis.theta.tolist(),
-                                                               identified=mis.identified.T.tolist()),
-                                    dict(rotation_vector=mis.cov.diagonal().clamp(min=0).sqrt().tolist()),
-                                    mis.identified.shape[1], mis.fit, _unidentified(mis, 3)))
-        if delay is None:
-            pass
-        elif not delay.identified.shape[1]:
-            out.append(SensorDelay("sensor_delay", name, notes=UNOBSERVABLE))
-        else:
-            out.append(SensorDelay("sensor_delay", name, dict(delay=float(delay.theta[0])),
-                                   dict(delay=float(delay.cov[0, 0].clamp(min=0).sqrt())), 1, delay.fit))
-        if head is None:
-            continue
-        if not head.identified.shape[1]:
-            out.append(HeadingDrift("heading_drift", name, notes=UNOBSERVABLE))
-        else:
-            params, fit_d = dict(rate=float(head.theta[0]), t0=t0, t1=float(time[-1])), head.fit
-            if not bool(derived[i]):
-                # (each gyro's own noise model, not the suit's shared walk a bias is judged with: with
-                # that, 15007's thigh drift lost its own gyro's word to the shank's, 66 of 70 named)
-                # a drifting heading turns the link's gyro with it (e = -rate z): what its integral says,
-                # for or against, joins the score. The low-passed e_z of the fit barely tells a drift of
-                # a link's own sensor from its neighbour's where a ball joint takes up the turn between
-                # them and only the other side's joint shows it
-                params["own_gyro_score"] = agreement(analysis.e[:, b, i], analysis.R_m[:, b, i], vertical_turn(time),
-                                                     ok[:, i], time, head.theta[:1])
-                fit_d = dataclasses.replace(fit_d, score=fit_d.score + params["own_gyro_score"])
-            out.append(HeadingDrift("heading_drift", name, params, dict(rate=float(head.cov[0, 0].clamp(min=0).sqrt())),
-                                    1, fit_d))
+        if mis is not None:
+            out.append(_misalignment(name, mis))
+        if delay is not None:
+            out.append(_sensor_delay(name, delay))
+        if head is not None:
+            out.append(_heading_drift(analysis, b, i, head, bool(derived[i]), ok[:, i], t0))
     return out
+
+
+def _misalignment(name: str, mis: LinearFit) -> Effect:
+    if not mis.identified.shape[1]:
+        return Misalignment("misalignment", name, notes=UNOBSERVABLE)
+    return Misalignment("misalignment", name, dict(rotation_vector=mis.theta.tolist(), identified=mis.identified.T.tolist()),
+                        dict(rotation_vector=mis.cov.diagonal().clamp(min=0).sqrt().tolist()),
+                        mis.identified.shape[1], mis.fit, _unidentified(mis, 3))
+
+
+def _sensor_delay(name: str, delay: LinearFit) -> Effect:
+    if not delay.identified.shape[1]:
+        return SensorDelay("sensor_delay", name, notes=UNOBSERVABLE)
+    return SensorDelay("sensor_delay", name, dict(delay=float(delay.theta[0])),
+                       dict(delay=float(delay.cov[0, 0].clamp(min=0).sqrt())), 1, delay.fit)
+
+
+def _heading_drift(analysis: Analysis, b: int, i: int, head: LinearFit, derived: bool, ok: torch.Tensor,
+                   t0: float) -> Effect:
+    """Link i's drift from its fit; ok [T]: where its targets are valid."""
+    name, time = analysis.links[i], analysis.time
+    if not head.identified.shape[1]:
+        return HeadingDrift("heading_drift", name, notes=UNOBSERVABLE)
+    params, fit_d = dict(rate=float(head.theta[0]), t0=t0, t1=float(time[-1])), head.fit
+    if not derived:
+        # (each gyro's own noise model, not the suit's shared walk a bias is judged with: with
+        # that, 15007's thigh drift lost its own gyro's word to the shank's, 66 of 70 named)
+        # a drifting heading turns the link's gyro with it (e = -rate z): what its integral says,
+        # for or against, joins the score. The low-passed e_z of the fit barely tells a drift of
+        # a link's own sensor from its neighbour's where a ball joint takes up the turn between
+        # them and only the other side's joint shows it
+        params["own_gyro_score"] = agreement(analysis.e[:, b, i], analysis.R_m[:, b, i], vertical_turn(time),
+                                             ok, time, head.theta[:1])
+        fit_d = dataclasses.replace(fit_d, score=fit_d.score + params["own_gyro_score"])
+    return HeadingDrift("heading_drift", name, params, dict(rate=float(head.cov[0, 0].clamp(min=0).sqrt())), 1, fit_d)
 
 
 def _drift(analysis: Analysis, b: int, usable: list[int], tr: torch.Tensor, te: torch.Tensor,
