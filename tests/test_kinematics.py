@@ -199,7 +199,7 @@ def test_bad_input_says_what_was_expected(tmp_path):
 
 
 def test_the_parser_loaded_alone_reads_the_models_as_pytorch_kinematics_does():
-    """The URDF parser loaded without pytorch-kinematics' package (urdf._urdf_class) leaves the package
+    """The URDF parser loaded without pytorch-kinematics' package (urdf.urdf_class) leaves the package
     and matplotlib unimported, and gives the same trees as the parser imported through the package."""
     import pickle
     import subprocess
@@ -216,13 +216,13 @@ def test_the_parser_loaded_alone_reads_the_models_as_pytorch_kinematics_does():
     from torchik.method.kinematics import urdf
     from torchik.method.models import human_urdf, icub_urdf_path
 
-    urdf._urdf_class.cache_clear()
+    urdf.urdf_class.cache_clear()
     try:
-        assert urdf._urdf_class().__module__ == "pytorch_kinematics.urdf_parser_py.urdf"
+        assert urdf.urdf_class().__module__ == "pytorch_kinematics.urdf_parser_py.urdf"
         trees = [urdf.load_tree(human_urdf(48, None)), urdf.load_tree(human_urdf(66, None)),
                  urdf.load_tree(icub_urdf_path())]
     finally:
-        urdf._urdf_class.cache_clear()
+        urdf.urdf_class.cache_clear()
     for a, tree in zip(alone, trees):
         b = tree.__getstate__()
         assert a.keys() == b.keys()

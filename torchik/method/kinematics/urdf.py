@@ -97,7 +97,7 @@ _LOADING = threading.Lock()  # two threads building their first models load it o
 
 
 @functools.cache
-def _urdf_class():
+def urdf_class():
     """pytorch-kinematics' URDF parser (its `urdf_parser_py` subpackage), loaded on its own under
     PARSER. `import pytorch_kinematics.urdf_parser_py` would first run the package's `__init__`,
     which imports its IK solvers, SDF tools and matplotlib: 0.5-0.8 s on this project's 2-core
@@ -135,7 +135,7 @@ def _load_parser():
 def read_urdf(source: str | Path):
     """Parse a URDF file (or XML text) with pytorch-kinematics' parser; errors name the file.
     Returns (the parsed robot, where: the file's path or '<URDF text>')."""
-    URDF = _urdf_class()
+    URDF = urdf_class()
     if isinstance(source, Path) or (isinstance(source, str) and not source.lstrip().startswith("<")):
         path = Path(source)
         if not path.is_file():

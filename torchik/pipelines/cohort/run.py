@@ -171,7 +171,7 @@ def start_forkserver() -> bool:
 
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return False
-    # the URDF parser is loaded on first use (urdf._urdf_class, 0.02 s): not pytorch_kinematics, whose
+    # the URDF parser is loaded on first use (urdf.urdf_class, 0.02 s): not pytorch_kinematics, whose
     # package would bring its IK solvers and matplotlib into every worker
     preload = ["distributed", "torchik.pipelines.cohort.trial"]
     multiprocessing.get_context("forkserver").set_forkserver_preload(preload)
@@ -187,9 +187,9 @@ def start_forkserver() -> bool:
 
 def _import_torchik() -> None:
     import torchik.pipelines.cohort.trial  # noqa: F401
-    from torchik.method.kinematics.urdf import _urdf_class
+    from torchik.method.kinematics.urdf import urdf_class
 
-    _urdf_class()
+    urdf_class()
 
 
 def _execute(client, batches: list[Batch], out: Path, run: str, rrd: bool, done: int, total: int, progress: bool,
