@@ -88,6 +88,31 @@ def test_every_solution_is_a_kkt_point_or_reported_infeasible(solved):
     assert len(unsolved) <= 0.1 * len(status) and (name == "icub" or not unsolved)
 
 
+@pytest.mark.parametrize("subjects", [slice(None), slice(0, 20)])
+def test_continued_from_the_unconstrained_start_the_solve_reaches_the_same_kkt_points(solved, subjects):
+    """`start` (the captured step's unconstrained minimiser and factorisation): its feasible
+    subjects are kept as they are, the others solved from it, on the tree's factorisation (the
+    whole batch) or densely (20 subjects)."""
+    from torchik.method.qp import unconstrained
+
+    name, problem, solution, _ = solved
+    if subjects != slice(None):
+        rows = torch.arange(problem.g.shape[0])[subjects]
+        pick = lambda t: None if t is None else t[rows]  # noqa: E731
+        problem = QPProblem(None, *(pick(t) for t in (problem.g, problem.lb, problem.ub, problem.G, problem.h)),
+                            problem.tree.select(rows))
+        solution = BatchedBackend().solve(problem)
+    assert problem.tree is not None  # the tree's factorisation starts, the gathered subjects go on densely or not
+    start = unconstrained(problem)
+    continued = BatchedBackend().solve(problem, start=start)
+    ok = continued.solved
+    assert torch.equal(ok, solution.solved)
+    assert torch.equal(continued.x[start.feasible], start.x[start.feasible])
+    assert float(kkt_error(problem, continued.x, continued.bound_multipliers, continued.row_multipliers)[ok].max()) < 1e-8
+    f, f_ref = objective(problem, continued.x)[ok], objective(problem, solution.x)[ok]
+    assert float(((f - f_ref).abs() / (1 + f_ref.abs())).max()) < 1e-10
+
+
 def strictly_active(problem: QPProblem, bound: torch.Tensor, threshold: float) -> torch.Tensor:
     """Bounds whose multiplier exceeds `threshold`, relative to the gradient's scale: +1 upper, -1
     lower, 0 not. -> [B,N]. By multipliers, not positions: on these nearly singular problems

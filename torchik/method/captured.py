@@ -45,7 +45,9 @@ from .capture import CaptureError, capture
 from .integrate import integrate, orthonormalize_unsynchronised
 from .invariant import invariant_measure
 from .kinematics import KinematicModel
-from .qp import QPProblem, TreeHessian, unconstrained_if_feasible
+from .qp import QPProblem, TreeHessian, Unconstrained, unconstrained
+from .qp.dense import DenseFactor
+from .qp.tree import TreeFactor
 from .scheme import SchemeHistory, evaluation
 from .settings import TrackerSettings
 from .state import State
@@ -61,13 +63,15 @@ class Replayed:
     records, the diagnostics mnte [B] and residual_norm [B,n_p+n_o]; and either, for a usual step,
     the next state (its base rotation orthonormalised as `rotation`), the next velocity slope and
     active_constraints [B] (problem None), or, where a bound is active or the invariant is to be
-    checked eagerly, the step's QP `problem` for the backend (the others None)."""
+    checked eagerly, the step's QP `problem` for the backend with its unconstrained minimiser and
+    factorisation `start` (the others None)."""
 
     targets: Targets
     dt: float | torch.Tensor
     mnte: torch.Tensor
     residual_norm: torch.Tensor
     problem: QPProblem | None = None
+    start: Unconstrained | None = None
     state: State | None = None
     rotation: torch.Tensor | None = None
     slope: torch.Tensor | None = None
@@ -107,8 +111,12 @@ class CapturedStep:
             return None
         assert self._compiled is not None  # captured above
         p, R, R_o, s, nu, slope, mnte, residual_norm, active, flags, g, lb, ub, h, *rest = self._compiled(*inputs)
-        hessian, copies = rest[:-4], rest[-4:]  # H [B,N,N], or the tree's form of it: axes, node and position weights
-        usual, solvable = flags.tolist()
+        # H [B,N,N] and its Cholesky factor and info, or the tree's form of H (axes, node and position
+        # weights) and its factorisation's parts; then the targets' copies
+        copies, rest = rest[-4:], rest[:-4]
+        dense = len(rest) == 3
+        hessian, factor = (rest[:1], rest[1:]) if dense else (rest[:3], rest[3:])
+        usual, solvable = flags[:2].tolist()
         if not solvable:
             return None
         done = dict(targets=Targets(*copies), dt=history.nominal_dt if dt is None else step, mnte=mnte,
@@ -116,13 +124,15 @@ class CapturedStep:
         if usual:
             return Replayed(**done, state=State(p, R, s, nu), rotation=R_o, slope=slope, active_constraints=active)
         G, tree = self.batch.linear_rows, self.structure.tree
-        if len(hessian) == 1:
+        if dense:
             problem = QPProblem(hessian[0], g, lb, ub, G, None if G is None else h)
+            made: TreeFactor | DenseFactor = DenseFactor.all_free(hessian[0], *factor)
         else:
             assert tree is not None  # the step's H is in the tree's form only where the model has one
             problem = QPProblem(None, g, lb, ub, G, None if G is None else h,
                                 TreeHessian(tree, hessian[0], hessian[1], hessian[2], self.settings.damping))
-        return Replayed(**done, problem=problem)
+            made = TreeFactor.from_parts(tree, factor)
+        return Replayed(**done, problem=problem, start=Unconstrained(nu, flags[2:], made))
 
     def _time_step(self, dt) -> torch.Tensor | None:
         """dt as [B,1] (the nominal one for None); None for a dt of the wrong shape, which the eager
@@ -156,7 +166,8 @@ class CapturedStep:
                         positions=not structure.rotations_only)
         kin = step_kinematics(model, structure, batch, settings.scheme, q, R_B, at)
         task = step_task(model, structure, settings, batch, s, at, kin, dt)
-        nu_next, feasible = unconstrained_if_feasible(task.problem)
+        start = unconstrained(task.problem)
+        nu_next, feasible = start.x, start.feasible
         p_next, R_next, s_next = integrate(p, R, s, nu_next, dt, settings.rotation_integrator, settings.baumgarte_gain)
         R_o, near = orthonormalize_unsynchronised(R_next)
         kept = invariant_measure(State(p_next, R_next, s_next, nu_next), R_o, s, model.lower, model.upper) <= 1.0
@@ -169,7 +180,12 @@ class CapturedStep:
         problem = task.problem
         h = problem.h if problem.h is not None else problem.g.new_zeros(())  # a placeholder: no coupled rows
         tree = problem.tree
-        hessian = (problem.H,) if tree is None else (tree.axes, tree.node_weight, tree.position_weight)
+        if tree is None:
+            assert isinstance(start.factor, DenseFactor)  # made from the dense H
+            hessian: tuple = (problem.H, start.factor.L, start.factor.info)
+        else:
+            assert isinstance(start.factor, TreeFactor)  # made from the tree
+            hessian = (tree.axes, tree.node_weight, tree.position_weight, *start.factor.parts())
         return (p_next, R_next, R_o, s_next, nu_next, next_slope, mnte, residual_norm, problem.active(nu_next),
-                torch.stack((usual, solvable)), problem.g, problem.lb, problem.ub, h, *hessian,
+                torch.cat((torch.stack((usual, solvable)), feasible)), problem.g, problem.lb, problem.ub, h, *hessian,
                 *(t.clone() for t in targets[:4]))

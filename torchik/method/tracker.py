@@ -239,7 +239,7 @@ class DynamicalIK:
             self._history.advance_to(slope, replayed.dt)
         else:
             qp_start = time.perf_counter()
-            solution = self.backend.solve(replayed.problem, warm_start=q.velocity)
+            solution = self.backend.solve(replayed.problem, warm_start=q.velocity, start=replayed.start)
             qp_time = time.perf_counter() - qp_start
             failed, solved = self._advance(q, solution.x, replayed.dt, targets), solution.solved
             active = replayed.problem.active(solution.x)

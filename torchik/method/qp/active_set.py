@@ -74,9 +74,12 @@ class ActiveSetResult:
     row_steps: int
 
 
-def active_set(H, problem: QPProblem, sets: Sets, budget: int, tolerance: float) -> ActiveSetResult:
+def active_set(H, problem: QPProblem, sets: Sets, budget: int, tolerance: float,
+               factor=None) -> ActiveSetResult:
     """Active-set iterations from `sets`, at most `budget`. tolerance: how far (relative) a free
     variable may pass a bound, or a multiplier have the wrong sign, before the active set changes.
+    factor: H's factorisation with every variable free, made already: the first iteration's, whose
+    sets then hold no bound (rows may be active).
 
     After the first iteration only the subjects not yet done are carried on (gathered into a
     smaller batch): in tracking most subjects keep their active set and finish at once."""
@@ -91,7 +94,8 @@ def active_set(H, problem: QPProblem, sets: Sets, budget: int, tolerance: float)
     for iteration in range(1, budget + 1):  # noqa: B007  (the count is returned)
         pick = functools.partial(select, live)
         u, l, r, tol = pick(upper), pick(lower), pick(rows), tolerances.pick(live)
-        x_new, nu_new, eta_new, new_r, rows_done, steps = solve_on(sub_H, sub, u, l, r, tol)
+        x_new, nu_new, eta_new, new_r, rows_done, steps = solve_on(sub_H, sub, u, l, r, tol,
+                                                                   factor if iteration == 1 else None)
         row_steps += steps
         new_u, new_l, same = next_bounds(sub, x_new, nu_new, u, l, tol)
         same &= rows_done
@@ -110,15 +114,16 @@ def active_set(H, problem: QPProblem, sets: Sets, budget: int, tolerance: float)
     return ActiveSetResult(x, nu, eta, (upper, lower, rows), done, iteration, row_steps)
 
 
-def solve_on(H, problem: QPProblem, upper, lower, rows, tol: Tolerances):
+def solve_on(H, problem: QPProblem, upper, lower, rows, tol: Tolerances, factor=None):
     """The bounds `upper`, `lower` [B,N] held, the rows' optimal active set from `rows` [B,m].
+    factor: H's factorisation on the free variables, if made already.
     Returns x [B,N], the bound multipliers nu [B,N] (nu > 0 pushes against an upper bound, nu < 0
     against a lower one; 0 on free variables), eta [B,m] and the active rows (None without G),
     whether the rows' part is solved [B] and the rows' Schur-complement steps."""
     g, lb, ub, G, h = problem.g, problem.lb, problem.ub, problem.G, problem.h
     held = upper | lower
     value = torch.where(upper, ub, torch.where(lower, lb, torch.zeros_like(g)))
-    factor = H.factor(~held)
+    factor = H.factor(~held) if factor is None else factor
     x = factor.solve(-g.unsqueeze(-1), value.unsqueeze(-1)).squeeze(-1)
     eta, rows_done, steps = None, torch.ones_like(held[:, 0]), 0
     if G is not None:
@@ -129,7 +134,13 @@ def solve_on(H, problem: QPProblem, upper, lower, rows, tol: Tolerances):
         involved = any_last(rows | (violation > tol.row)).nonzero().flatten()
         if len(involved):
             pick = functools.partial(select, involved)
-            solved = _with_rows(H.select(involved), factor.select(involved), pick(g), pick(G), pick(h), pick(x),
+            sub_H, sub_factor = H.select(involved), factor.select(involved)
+            if isinstance(sub_H, TreeHessian) and len(involved) < DENSE_BELOW:
+                # the rows' Schur complement takes m + 2 solves: with the tree's factorisation each
+                # pays a fixed time per level; a few subjects' H factorised densely costs less
+                sub_H = DenseHessian(sub_H.dense())
+                sub_factor = sub_H.factor(~pick(held))
+            solved = _with_rows(sub_H, sub_factor, pick(g), pick(G), pick(h), pick(x),
                                 pick(violation), pick(rows), pick(held), tol.pick(involved))
             x, eta = x.index_copy(0, involved, solved[0]), eta.index_copy(0, involved, solved[1])
             rows = rows.index_copy(0, involved, solved[2])

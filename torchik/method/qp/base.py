@@ -7,8 +7,9 @@ from dataclasses import dataclass
 
 import torch
 
+from .dense import DenseFactor
 from .rows import row_values
-from .tree import TreeHessian
+from .tree import TreeFactor, TreeHessian
 
 
 @dataclass(frozen=True)
@@ -68,38 +69,61 @@ class QPSolution:
     row_multipliers: torch.Tensor | None = None
 
 
+@dataclass(frozen=True)
+class Unconstrained:
+    """A problem's unconstrained minimiser x = -H^-1 g [B,N], where it is already the QP's solution
+    (feasible [B]) and the factorisation of H with every variable free that gave it (a TreeFactor
+    or a DenseFactor): the first iteration of an active-set method that starts with no bound held,
+    done already (by the captured step, which hands it to the backend with its QP)."""
+
+    x: torch.Tensor
+    feasible: torch.Tensor
+    factor: "TreeFactor | DenseFactor"
+
+
 class QPBackend(ABC):
-    """Solves a batch of QPs. `warm_start` [B,N] is the previous step's solution, or None."""
+    """Solves a batch of QPs. `warm_start` [B,N] is the previous step's solution, or None. `start`:
+    the problem's unconstrained minimiser and factorisation, where already computed (the subjects
+    it satisfies are solved; a backend need not compute it again)."""
 
     name: str = "abstract"
 
     @abstractmethod
-    def solve(self, problem: QPProblem, warm_start: torch.Tensor | None = None) -> QPSolution:
+    def solve(self, problem: QPProblem, warm_start: torch.Tensor | None = None,
+              start: Unconstrained | None = None) -> QPSolution:
         ...
 
 
-def unconstrained_if_feasible(problem: QPProblem) -> tuple[torch.Tensor, torch.Tensor]:
-    """The unconstrained minimiser -H^-1 g and where it is already the QP's solution.
+def unconstrained(problem: QPProblem) -> Unconstrained:
+    """The unconstrained minimiser -H^-1 g, where it is already the QP's solution, and H's factorisation.
 
     For a convex QP, a minimiser of the objective alone that satisfies every bound and linear limit
     (strictly, no tolerance) is the constrained optimum too; a solver is needed only elsewhere.
-    Returns x [B,N] and feasible [B] bool (False also where H is not numerically positive definite).
+    feasible is False also where H is not numerically positive definite.
     """
+    factor: TreeFactor | DenseFactor
     if problem.tree is not None:
-        factor = problem.tree.factor(torch.ones_like(problem.g, dtype=torch.bool))
-        x, positive = factor.solve(-problem.g.unsqueeze(-1)).squeeze(-1), factor.positive
+        tree = problem.tree.factor(torch.ones_like(problem.g, dtype=torch.bool))
+        x, positive, factor = tree.solve(-problem.g.unsqueeze(-1)).squeeze(-1), tree.positive, tree
     else:
-        L, info = torch.linalg.cholesky_ex(problem.dense_hessian)
+        dense = DenseFactor.all_free(problem.dense_hessian)
         # two triangular solves: cholesky_solve does the same with copies and checks that cost, for
         # one subject, twice as much again
-        x = torch.linalg.solve_triangular(L, -problem.g.unsqueeze(-1), upper=False)
-        x, positive = torch.linalg.solve_triangular(L.transpose(-1, -2), x, upper=True).squeeze(-1), info == 0
+        x = torch.linalg.solve_triangular(dense.L, -problem.g.unsqueeze(-1), upper=False)
+        x = torch.linalg.solve_triangular(dense.L.transpose(-1, -2), x, upper=True).squeeze(-1)
+        positive, factor = dense.info == 0, dense
     # within every bound, and finite: Inf - Inf and NaN are not 0
     feasible = positive & (x.clamp(problem.lb, problem.ub) - x == 0).all(-1)
     if (rows := problem.rows) is not None:
         G, h = rows
         feasible &= (row_values(G, x) <= h).all(-1)
-    return x, feasible
+    return Unconstrained(x, feasible, factor)
+
+
+def unconstrained_if_feasible(problem: QPProblem) -> tuple[torch.Tensor, torch.Tensor]:
+    """`unconstrained(problem)`'s x [B,N] and feasible [B] bool."""
+    start = unconstrained(problem)
+    return start.x, start.feasible
 
 
 def clipped_fallback(problem: QPProblem) -> torch.Tensor:

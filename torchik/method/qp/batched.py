@@ -31,10 +31,11 @@ from __future__ import annotations
 
 import torch
 
-from .active_set import Sets, active_set, take
-from .base import QPBackend, QPProblem, QPSolution, clipped_fallback
+from .active_set import ActiveSetResult, Sets, active_set, any_last, take
+from .base import QPBackend, QPProblem, QPSolution, Unconstrained, clipped_fallback
 from .dense import DenseHessian
 from .interior_point import interior_point
+from .tree import TreeFactor, TreeHessian
 
 
 class BatchedBackend(QPBackend):
@@ -66,9 +67,13 @@ class BatchedBackend(QPBackend):
         self.row_steps = 0  # the rows' Schur-complement steps of the last solve
         self.rescued = 0  # subjects of the last solve that needed the interior-point method
 
-    def solve(self, problem: QPProblem, warm_start: torch.Tensor | None = None) -> QPSolution:
+    def solve(self, problem: QPProblem, warm_start: torch.Tensor | None = None,
+              start: Unconstrained | None = None) -> QPSolution:
         H = problem.tree if problem.tree is not None else DenseHessian(problem.dense_hessian)
-        result = active_set(H, problem, self._initial_sets(problem), self.active_set_iterations, self.tolerance)
+        if start is None:
+            result = active_set(H, problem, self._initial_sets(problem), self.active_set_iterations, self.tolerance)
+        else:
+            result = self._continued(H, problem, start)
         x, nu, eta, sets, done = result.x, result.nu, result.eta, result.sets, result.done
         self.iterations, self.row_steps, self.rescued = result.iterations, result.row_steps, 0
         if not bool(done.all()):
@@ -95,6 +100,42 @@ class BatchedBackend(QPBackend):
         if not bool(solved.all()):
             x = torch.where(solved[:, None], x, clipped_fallback(problem))
         return QPSolution(x, solved, nu, eta)
+
+    def _continued(self, H, problem: QPProblem, start: Unconstrained) -> ActiveSetResult:
+        """The active-set iterations for the subjects that `start`'s minimiser does not satisfy (the
+        others are solved), from the last solve's active set. Where none of them holds a bound there,
+        the first iteration's factorisation is start's (the rows are found in their Schur complement
+        with it). Only those subjects are gathered: in tracking, a few of the batch."""
+        upper, lower, rows = self._initial_sets(problem)
+        none = torch.zeros_like(upper)
+        live = (~start.feasible).nonzero().flatten()
+        if len(live) == 0:  # handed over for another reason (the invariant, the rotation): nothing to solve
+            no_rows: torch.Tensor | None = None if rows is None else problem.g.new_zeros(rows.shape)
+            return ActiveSetResult(start.x, torch.zeros_like(start.x), eta=no_rows, sets=(none, none.clone(), rows),
+                                   done=torch.ones_like(start.feasible), iterations=1, row_steps=0)
+        sub_H, sub = take(H, problem, live)
+        sets: Sets = (upper.index_select(0, live), lower.index_select(0, live),
+                      None if rows is None else rows.index_select(0, live))
+        # a few subjects are solved densely (`take`): their H factorised again densely costs less
+        # than solving with the tree's factorisation, whose every solve pays a fixed time per level
+        reuse = not bool(any_last(sets[0] | sets[1]).any()) and \
+            (isinstance(sub_H, TreeHessian) or not isinstance(start.factor, TreeFactor))
+        result = active_set(sub_H, sub, sets, self.active_set_iterations, self.tolerance,
+                            factor=start.factor.select(live) if reuse else None)
+
+        def scatter(whole: torch.Tensor, part: torch.Tensor) -> torch.Tensor:
+            return whole.index_copy(0, live, part)
+
+        eta: torch.Tensor | None = None
+        found_rows: torch.Tensor | None = None
+        if rows is not None:
+            assert result.eta is not None and result.sets[2] is not None  # a problem with rows has them
+            eta, found_rows = scatter(problem.g.new_zeros(rows.shape), result.eta), scatter(torch.zeros_like(rows),
+                                                                                          result.sets[2])
+        found = (scatter(none, result.sets[0]), scatter(none, result.sets[1]), found_rows)
+        return ActiveSetResult(scatter(start.x, result.x), scatter(torch.zeros_like(start.x), result.nu), eta, found,
+                               scatter(torch.ones_like(start.feasible), result.done), result.iterations,
+                               result.row_steps)
 
     def _kkt_tolerance(self, dtype) -> float:
         """The KKT error at which an interior-point solution is accepted: `kkt_tolerance` in

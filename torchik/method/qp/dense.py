@@ -26,11 +26,22 @@ class DenseHessian:
 
 
 class DenseFactor:
+    """H [B,N,N] restricted to the free variables [B,N], Cholesky-factorised (L, info [B]: 0 where
+    it exists)."""
+
     def __init__(self, H: torch.Tensor, free: torch.Tensor):
         self.H, self.free = H, free.to(H.dtype)
         f = self.free
         reduced = H * (f[:, :, None] * f[:, None, :]) + torch.diag_embed(1 - f)
         self.L, self.info = torch.linalg.cholesky_ex(reduced)
+
+    @classmethod
+    def all_free(cls, H: torch.Tensor, L: torch.Tensor | None = None, info: torch.Tensor | None = None) -> "DenseFactor":
+        """H with every variable free: its Cholesky factor L (and info) as given, else computed."""
+        factor = object.__new__(cls)
+        factor.H, factor.free = H, torch.ones(H.shape[:2], dtype=H.dtype, device=H.device)
+        factor.L, factor.info = (L, info) if L is not None and info is not None else torch.linalg.cholesky_ex(H)
+        return factor
 
     def select(self, subjects: torch.Tensor) -> "DenseFactor":
         """The factorisation of the subjects [k] (indices), without factorising again."""

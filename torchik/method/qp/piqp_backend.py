@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .base import QPBackend, QPProblem, QPSolution, clipped_fallback, unconstrained_if_feasible
+from .base import QPBackend, QPProblem, QPSolution, Unconstrained, clipped_fallback, unconstrained_if_feasible
 
 
 class PiqpBackend(QPBackend):
@@ -27,10 +27,11 @@ class PiqpBackend(QPBackend):
         self._qpsolvers = qpsolvers
         self.eps_abs, self.eps_rel = eps_abs, eps_rel
 
-    def solve(self, problem: QPProblem, warm_start: torch.Tensor | None = None) -> QPSolution:
+    def solve(self, problem: QPProblem, warm_start: torch.Tensor | None = None,
+              start: Unconstrained | None = None) -> QPSolution:
         # Where the unconstrained minimiser already satisfies every limit it is the exact solution;
         # PIQP is called for the other subjects only.
-        x, done = unconstrained_if_feasible(problem)
+        x, done = unconstrained_if_feasible(problem) if start is None else (start.x.clone(), start.feasible)
         if bool(done.all()):
             return QPSolution(x, done)
         rows = (~done).nonzero().flatten().tolist()

@@ -266,15 +266,25 @@ class TreeFactor:
     def select(self, subjects: torch.Tensor) -> "TreeFactor":
         """The factorisation of the subjects [k] (indices), without factorising again."""
         last = lambda t: t.index_select(-1, subjects)  # noqa: E731  (batch-last tensors)
-        picked = object.__new__(TreeFactor)
-        picked.tree = self.tree
-        picked.free, picked.linear = last(self.free), last(self.linear)
-        picked._whole = tuple(last(t) for t in self._whole)
-        picked._levels()
-        picked.base_weight = self.base_weight.index_select(0, subjects)
-        picked.base_factor = self.base_factor.index_select(0, subjects)
-        picked.positive = self.positive.index_select(0, subjects)
-        return picked
+        first = lambda t: t.index_select(0, subjects)  # noqa: E731
+        free, linear, gain, u, axes, base_weight, base_factor, positive = self.parts()
+        return TreeFactor.from_parts(self.tree, (last(free), last(linear), last(gain), last(u), last(axes),
+                                                 first(base_weight), first(base_factor), first(positive)))
+
+    def parts(self) -> tuple[torch.Tensor, ...]:
+        """The factorisation as tensors (a captured step returns them): free [N,B], linear [3,B],
+        gain [n,B], u and axes [n,3,B] in level order, base_weight and base_factor [B,3,3], positive [B]."""
+        return (self.free, self.linear, *self._whole, self.base_weight, self.base_factor, self.positive)
+
+    @classmethod
+    def from_parts(cls, tree: JointTree, parts) -> "TreeFactor":
+        """The factorisation of `parts()` on `tree`, without factorising again."""
+        factor = object.__new__(cls)
+        factor.tree = tree
+        factor.free, factor.linear, gain, u, axes, factor.base_weight, factor.base_factor, factor.positive = parts
+        factor._whole = (gain, u, axes)
+        factor._levels()
+        return factor
 
     def _levels(self) -> None:
         """gain [m,B], u and axes [m,3,B] per level, as views of the whole tensors."""
