@@ -56,3 +56,31 @@ def test_solves_with_held_variables_match_the_dense_cholesky(with_extra):
     assert float(residual.max()) < 1e-13
     if with_extra:  # well conditioned: x itself agrees with the dense solve
         assert torch.allclose(x, DenseHessian(problem.tree.dense()).factor(free, extra).solve(rhs, held), atol=1e-10)
+
+
+def test_the_base_blocks_cholesky_written_out_for_capture_matches_lapack(monkeypatch):
+    """Captured, the base's 3x3 block is factorised and solved element by element (`_cholesky3`);
+    it gives LAPACK's factor and solution to rounding, and flags the blocks that are not positive
+    definite (a zero or negative pivot, NaN) as LAPACK's info does."""
+    import torchik.method.capture as capture_module
+    from torchik.method.qp import tree as tree_module
+
+    generator = torch.Generator().manual_seed(0)
+    M = torch.randn(500, 3, 3, generator=generator, dtype=torch.float64)
+    scale = torch.logspace(-8, 0, 500, dtype=torch.float64)[:, None, None]  # down to nearly singular
+    A = M @ M.transpose(1, 2) + scale * torch.eye(3, dtype=torch.float64)
+    A[:3] = torch.tensor([[[1.0, 2, 0], [2, 1, 0], [0, 0, 1]]], dtype=torch.float64)  # indefinite
+    A[3, 2, 2] = -1.0
+    A[4, 1, 1] = float("nan")
+    b = torch.randn(500, 3, 4, generator=generator, dtype=torch.float64)
+    L_ref, info = torch.linalg.cholesky_ex(A)
+    monkeypatch.setattr(capture_module, "_tracing", True)
+    L, positive = tree_module._cholesky3(A)
+    assert torch.equal(positive, info == 0) and int((~positive).sum()) == 5
+    ok = positive
+    # to rounding relative to the block (a nearly singular block's last pivot cancels)
+    assert float(((L - L_ref)[ok].abs().amax((1, 2)) / L_ref[ok].abs().amax((1, 2))).max()) < 1e-12
+    x = tree_module._cholesky3_solve(b, L)
+    x_ref = torch.cholesky_solve(b, L_ref)
+    relative = (x - x_ref)[ok].abs().amax((1, 2)) / x_ref[ok].abs().amax((1, 2))
+    assert float(relative.max()) < 1e-6 and float(relative[scale.flatten()[ok] > 1e-4].max()) < 1e-12

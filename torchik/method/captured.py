@@ -13,8 +13,11 @@ What depends on the data becomes two flags, read in the step's one synchronisati
 - usual: besides, every subject's unconstrained minimiser is within its limits (then it is the QP's
   solution, as the PIQP backend finds it: no solver runs), the new base rotation is near enough to
   SO(3) for Newton-Schulz, and the invariant holds. Then the replayed step is complete. Otherwise
-  (a bound active, mostly) the captured step hands its QP to the backend, and the tracker ends the
-  step as the eager one does (integration, invariant).
+  (a bound active, mostly) the captured step hands its QP to the backend with its unconstrained
+  solve (`qp.Unconstrained`: the minimiser, which subjects it satisfies, and on the tree the
+  factorisation): the backend solves only the other subjects, from that factorisation where they
+  hold no bound (iCub's coupled rows, in their Schur complement). The tracker ends the step as the
+  eager one does (integration, invariant).
 
 The replay needs a settled history (two steps taken, no dropped target remembered). A replayed
 step's results are the eager step's to rounding (fused sums in another order; 1e-12 on the states
@@ -46,7 +49,6 @@ from .integrate import integrate, orthonormalize_unsynchronised
 from .invariant import invariant_measure
 from .kinematics import KinematicModel
 from .qp import QPProblem, TreeHessian, Unconstrained, unconstrained
-from .qp.dense import DenseFactor
 from .qp.tree import TreeFactor
 from .scheme import SchemeHistory, evaluation
 from .settings import TrackerSettings
@@ -111,11 +113,11 @@ class CapturedStep:
             return None
         assert self._compiled is not None  # captured above
         p, R, R_o, s, nu, slope, mnte, residual_norm, active, flags, g, lb, ub, h, *rest = self._compiled(*inputs)
-        # H [B,N,N] and its Cholesky factor and info, or the tree's form of H (axes, node and position
-        # weights) and its factorisation's parts; then the targets' copies
+        # H [B,N,N], or the tree's form of H (axes, node and position weights) and its factorisation's
+        # parts; then the targets' copies
         copies, rest = rest[-4:], rest[:-4]
-        dense = len(rest) == 3
-        hessian, factor = (rest[:1], rest[1:]) if dense else (rest[:3], rest[3:])
+        dense = len(rest) == 1
+        hessian, factor = rest[:3], rest[3:]
         usual, solvable = flags[:2].tolist()
         if not solvable:
             return None
@@ -124,9 +126,9 @@ class CapturedStep:
         if usual:
             return Replayed(**done, state=State(p, R, s, nu), rotation=R_o, slope=slope, active_constraints=active)
         G, tree = self.batch.linear_rows, self.structure.tree
+        made: TreeFactor | None = None
         if dense:
             problem = QPProblem(hessian[0], g, lb, ub, G, None if G is None else h)
-            made: TreeFactor | DenseFactor = DenseFactor.all_free(hessian[0], *factor)
         else:
             assert tree is not None  # the step's H is in the tree's form only where the model has one
             problem = QPProblem(None, g, lb, ub, G, None if G is None else h,
@@ -180,9 +182,8 @@ class CapturedStep:
         problem = task.problem
         h = problem.h if problem.h is not None else problem.g.new_zeros(())  # a placeholder: no coupled rows
         tree = problem.tree
-        if tree is None:
-            assert isinstance(start.factor, DenseFactor)  # made from the dense H
-            hessian: tuple = (problem.H, start.factor.L, start.factor.info)
+        if tree is None:  # a dense H's factorisation is not returned: a few subjects' is cheap to make again
+            hessian: tuple = (problem.H,)
         else:
             assert isinstance(start.factor, TreeFactor)  # made from the tree
             hessian = (tree.axes, tree.node_weight, tree.position_weight, *start.factor.parts())

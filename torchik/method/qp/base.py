@@ -73,12 +73,12 @@ class QPSolution:
 class Unconstrained:
     """A problem's unconstrained minimiser x = -H^-1 g [B,N], where it is already the QP's solution
     (feasible [B]) and the factorisation of H with every variable free that gave it (a TreeFactor
-    or a DenseFactor): the first iteration of an active-set method that starts with no bound held,
-    done already (by the captured step, which hands it to the backend with its QP)."""
+    or a DenseFactor; None where not kept): the first iteration of an active-set method that starts
+    with no bound held, done already (by the captured step, which hands it to the backend with its QP)."""
 
     x: torch.Tensor
     feasible: torch.Tensor
-    factor: "TreeFactor | DenseFactor"
+    factor: "TreeFactor | DenseFactor | None"
 
 
 class QPBackend(ABC):

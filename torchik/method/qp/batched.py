@@ -118,10 +118,10 @@ class BatchedBackend(QPBackend):
                       None if rows is None else rows.index_select(0, live))
         # a few subjects are solved densely (`take`): their H factorised again densely costs less
         # than solving with the tree's factorisation, whose every solve pays a fixed time per level
-        reuse = not bool(any_last(sets[0] | sets[1]).any()) and \
+        reuse = start.factor is not None and not bool(any_last(sets[0] | sets[1]).any()) and \
             (isinstance(sub_H, TreeHessian) or not isinstance(start.factor, TreeFactor))
         result = active_set(sub_H, sub, sets, self.active_set_iterations, self.tolerance,
-                            factor=start.factor.select(live) if reuse else None)
+                            factor=start.factor.select(live) if reuse and start.factor is not None else None)
 
         def scatter(whole: torch.Tensor, part: torch.Tensor) -> torch.Tensor:
             return whole.index_copy(0, live, part)

@@ -26,6 +26,7 @@ from typing import Any
 
 import torch
 
+from ..capture import tracing
 from ..kinematics import KinematicModel
 
 
@@ -258,9 +259,7 @@ class TreeFactor:
         # a Cholesky factor, not an inverse: this block can be nearly singular (targets that the
         # joints alone can match leave the base only the damping), and only a factorisation keeps
         # the solve backward stable there
-        self.base_factor, info = torch.linalg.cholesky_ex(base)
-        # [B]: the factorisation exists (the joints' pivots are positive with a positive damping)
-        self.positive = info == 0
+        self.base_factor, self.positive = _cholesky3(base)
         self.linear = (hessian.position_weight[None, :] + diagonal[:3])  # [3,B]
 
     def select(self, subjects: torch.Tensor) -> "TreeFactor":
@@ -317,7 +316,7 @@ class TreeFactor:
             omega_rhs = f * (omega_rhs - self.base_weight @ c_B) + c_B
         else:
             omega_rhs = f * omega_rhs
-        omega_B = torch.cholesky_solve(omega_rhs, self.base_factor).permute(1, 2, 0)  # [3,k,B]
+        omega_B = _cholesky3_solve(omega_rhs, self.base_factor).permute(1, 2, 0)  # [3,k,B]
         linear = self.free[:3, None] * r[:3] / self.linear[:, None] + (0 if c is None else c[:3])
         # root to leaves: each joint's rate from its parent frame's angular velocity
         omega: list[torch.Tensor | None] = [None] * L + [omega_B[None]]  # [m,3,k,B] per level, the base last
@@ -333,6 +332,44 @@ class TreeFactor:
             omega[h] = torch.addcmul(omega_p, self.axes[h][:, :, None], rates[h][:, None])
         joints = torch.cat(rates).index_select(0, tree.position) if L else r[6:]
         return torch.cat((linear, omega_B, joints)).permute(2, 0, 1).contiguous()
+
+
+def _cholesky3(A: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The Cholesky factor L [B,3,3] of A [B,3,3] and where it exists [B] (the joints' pivots are
+    positive with a positive damping; this block can be nearly singular). Captured, written out
+    element by element: LAPACK's call through the dispatcher costs a small batch more than the
+    whole step's fused loops."""
+    if not tracing():
+        L, info = torch.linalg.cholesky_ex(A)
+        return L, info == 0
+    a = A.unbind(-1)
+    a00, a10, a20, a11, a21, a22 = a[0][:, 0], a[0][:, 1], a[0][:, 2], a[1][:, 1], a[1][:, 2], a[2][:, 2]
+    l00 = a00.sqrt()
+    l10, l20 = a10 / l00, a20 / l00
+    l11 = (a11 - l10 * l10).sqrt()
+    l21 = (a21 - l20 * l10) / l11
+    d22 = a22 - l20 * l20 - l21 * l21
+    l22 = d22.sqrt()
+    zero = torch.zeros_like(l00)
+    L = torch.stack((l00, zero, zero, l10, l11, zero, l20, l21, l22), -1).view(-1, 3, 3)
+    positive = (a00 > 0) & (a11 - l10 * l10 > 0) & (d22 > 0)  # False for NaN too
+    return L, positive
+
+
+def _cholesky3_solve(b: torch.Tensor, L: torch.Tensor) -> torch.Tensor:
+    """x with L L^T x = b, for b [B,3,k] and L [B,3,3] lower triangular (`_cholesky3`)."""
+    if not tracing():
+        return torch.cholesky_solve(b, L)
+    l = L.unbind(-1)
+    l00, l10, l20, l11, l21, l22 = l[0][:, 0:1], l[0][:, 1:2], l[0][:, 2:3], l[1][:, 1:2], l[1][:, 2:3], l[2][:, 2:3]
+    b0, b1, b2 = b.unbind(1)  # [B,k] each
+    y0 = b0 / l00
+    y1 = (b1 - l10 * y0) / l11
+    y2 = (b2 - l20 * y0 - l21 * y1) / l22
+    x2 = y2 / l22
+    x1 = (y1 - l21 * x2) / l11
+    x0 = (y0 - l10 * x1 - l20 * x2) / l00
+    return torch.stack((x0, x1, x2), 1)
 
 
 def _rows(t: torch.Tensor | None, rows: torch.Tensor | None) -> torch.Tensor:
