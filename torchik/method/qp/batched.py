@@ -116,12 +116,16 @@ class BatchedBackend(QPBackend):
         sub_H, sub = take(H, problem, live)
         sets: Sets = (upper.index_select(0, live), lower.index_select(0, live),
                       None if rows is None else rows.index_select(0, live))
-        # a few subjects are solved densely (`take`): their H factorised again densely costs less
-        # than solving with the tree's factorisation, whose every solve pays a fixed time per level
-        reuse = start.factor is not None and not bool(any_last(sets[0] | sets[1]).any()) and \
-            (isinstance(sub_H, TreeHessian) or not isinstance(start.factor, TreeFactor))
+        factor = start.factor
+        if bool(any_last(sets[0] | sets[1]).any()):
+            factor = None  # a held bound: the first iteration factorises on the free variables
+        elif isinstance(factor, TreeFactor) and not isinstance(sub_H, TreeHessian):
+            # a few subjects are solved densely (`take`): their H factorised again densely costs
+            # less than solving with the tree's factorisation, whose every solve pays a fixed time
+            # per level
+            factor = None
         result = active_set(sub_H, sub, sets, self.active_set_iterations, self.tolerance,
-                            factor=start.factor.select(live) if reuse and start.factor is not None else None)
+                            factor=None if factor is None else factor.select(live))
 
         def scatter(whole: torch.Tensor, part: torch.Tensor) -> torch.Tensor:
             return whole.index_copy(0, live, part)

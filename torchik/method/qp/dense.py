@@ -36,11 +36,11 @@ class DenseFactor:
         self.L, self.info = torch.linalg.cholesky_ex(reduced)
 
     @classmethod
-    def all_free(cls, H: torch.Tensor, L: torch.Tensor | None = None, info: torch.Tensor | None = None) -> "DenseFactor":
-        """H with every variable free: its Cholesky factor L (and info) as given, else computed."""
+    def all_free(cls, H: torch.Tensor) -> "DenseFactor":
+        """H with every variable free (no masking to do)."""
         factor = object.__new__(cls)
         factor.H, factor.free = H, torch.ones(H.shape[:2], dtype=H.dtype, device=H.device)
-        factor.L, factor.info = (L, info) if L is not None and info is not None else torch.linalg.cholesky_ex(H)
+        factor.L, factor.info = torch.linalg.cholesky_ex(H)
         return factor
 
     def select(self, subjects: torch.Tensor) -> "DenseFactor":
