@@ -37,10 +37,13 @@ class DenseFactor:
 
     @classmethod
     def all_free(cls, H: torch.Tensor) -> "DenseFactor":
-        """H with every variable free (no masking to do)."""
+        """H with every variable free (no masking to do). L is the transpose of LAPACK's upper
+        factor: for one subject's [72,72] H that factorisation and its solves take 63 against 73 us
+        the lower one's (which torch makes from a transposed copy and clears above the diagonal)."""
         factor = object.__new__(cls)
         factor.H, factor.free = H, torch.ones(H.shape[:2], dtype=H.dtype, device=H.device)
-        factor.L, factor.info = torch.linalg.cholesky_ex(H)
+        upper, factor.info = torch.linalg.cholesky_ex(H, upper=True)
+        factor.L = upper.transpose(-1, -2)
         return factor
 
     def select(self, subjects: torch.Tensor) -> "DenseFactor":
