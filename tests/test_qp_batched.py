@@ -113,6 +113,28 @@ def test_continued_from_the_unconstrained_start_the_solve_reaches_the_same_kkt_p
     assert float(((f - f_ref).abs() / (1 + f_ref.abs())).max()) < 1e-10
 
 
+def test_a_continued_solve_leaves_nothing_active_where_its_start_solved_for_the_next_warm_start():
+    """The subjects `start` solves hold no bound and no row in the active set the backend keeps for
+    its next solve, whether some subjects are left to solve or none."""
+    from torchik.method.qp import unconstrained
+
+    name = "icub"
+    problem = step_problems(load_model(name), TRACKED_LINKS[name], 64, seed=7)
+    assert problem.G is not None and problem.h is not None
+    backend = BatchedBackend()
+    backend.solve(problem)
+    assert backend._last is not None and bool(backend._last[2].any())  # rows active to be forgotten
+    unbounded = torch.full_like(problem.lb, torch.inf)
+    for rows_kept in (8, 0):  # the first subjects keep their rows (still violated), the others none
+        h = torch.where(torch.arange(64)[:, None] < rows_kept, problem.h, torch.inf)
+        loose = QPProblem(problem.H, problem.g, -unbounded, unbounded, problem.G, h, problem.tree)
+        start = unconstrained(loose)
+        backend.solve(loose, start=start)
+        upper, lower, rows = backend._last
+        assert not bool((upper | lower)[start.feasible].any() or rows[start.feasible].any())
+        assert bool(start.feasible.all()) == (rows_kept == 0)
+
+
 def strictly_active(problem: QPProblem, bound: torch.Tensor, threshold: float) -> torch.Tensor:
     """Bounds whose multiplier exceeds `threshold`, relative to the gradient's scale: +1 upper, -1
     lower, 0 not. -> [B,N]. By multipliers, not positions: on these nearly singular problems

@@ -82,7 +82,7 @@ def bench_batched(name: str, batch: int, device: str, dtype, min_seconds: float,
     or `min_seconds`, whichever comes first, after `warmup` steps. compiled: the step captured and
     replayed (`TrackerSettings(compile=True)`; captured during the warm-up, its seconds reported).
     A replayed step's QP is its unconstrained minimiser, one factorisation: one iteration; where a
-    bound is active the backend goes on from it (its first iteration is that factorisation)."""
+    bound is active the backend goes on from it and counts it as its first iteration."""
     # enough steps for min_seconds at a first guess of the speed (1e5 subject-steps/s on a CPU, 3e6 on
     # a GPU), at most max_steps: every step's targets are made before the timing starts
     guess = 3e6 if torch.device(device).type == "cuda" else 1e5
@@ -98,7 +98,7 @@ def bench_batched(name: str, batch: int, device: str, dtype, min_seconds: float,
         steps += 1
         replayed = compiled and math.isnan(diagnostics.kinematics_time)
         solved = not math.isnan(diagnostics.qp_time)  # the backend ran (else its counters are an earlier step's)
-        # the backend's first iteration of a replayed step is the captured factorisation
+        # a replayed step's backend counts the captured factorisation as its first iteration
         iterations += solver.iterations if solved else replayed
         rescued += solver.rescued if solved else 0
         active += float(diagnostics.active_constraints.double().mean())

@@ -134,12 +134,14 @@ def solve_on(H, problem: QPProblem, upper, lower, rows, tol: Tolerances, factor=
         involved = any_last(rows | (violation > tol.row)).nonzero().flatten()
         if len(involved):
             pick = functools.partial(select, involved)
-            sub_H, sub_factor = H.select(involved), factor.select(involved)
-            if isinstance(sub_H, TreeHessian) and len(involved) < DENSE_BELOW:
+            sub_H = H.select(involved)
+            if gathered_densely(sub_H, len(involved)):
                 # the rows' Schur complement takes m + 2 solves: with the tree's factorisation each
                 # pays a fixed time per level; a few subjects' H factorised densely costs less
                 sub_H = DenseHessian(sub_H.dense())
                 sub_factor = sub_H.factor(~pick(held))
+            else:
+                sub_factor = factor.select(involved)
             solved = _with_rows(sub_H, sub_factor, pick(g), pick(G), pick(h), pick(x),
                                 pick(violation), pick(rows), pick(held), tol.pick(involved))
             x, eta = x.index_copy(0, involved, solved[0]), eta.index_copy(0, involved, solved[1])
@@ -210,11 +212,16 @@ DENSE_BELOW = 32  # gathered batches smaller than this are solved densely: the t
                  # elimination costs a fixed time per level, a dense Cholesky of a few matrices less
 
 
+def gathered_densely(H, k: int) -> bool:
+    """Whether k subjects gathered from H (a TreeHessian or a DenseHessian) are solved densely."""
+    return isinstance(H, TreeHessian) and k < DENSE_BELOW
+
+
 def take(H, problem: QPProblem, rows: torch.Tensor):
     """The Hessian operator and problem of the subjects `rows` [k]."""
     pick = functools.partial(select, rows)
     sub_H = H.select(rows)
-    if isinstance(sub_H, TreeHessian) and len(rows) < DENSE_BELOW:
+    if gathered_densely(sub_H, len(rows)):
         sub_H = DenseHessian(sub_H.dense())
     tree = sub_H if isinstance(sub_H, TreeHessian) else None
     dense = sub_H.H if isinstance(sub_H, DenseHessian) else None

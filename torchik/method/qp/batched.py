@@ -29,6 +29,8 @@ batches, where the tree's fixed cost per level dominates).
 
 from __future__ import annotations
 
+from typing import cast
+
 import torch
 
 from .active_set import ActiveSetResult, Sets, active_set, any_last, take
@@ -48,9 +50,10 @@ class BatchedBackend(QPBackend):
     solution is kept where its KKT error is below `kkt_tolerance` (relative; 1e-4 in float32).
     tolerance: how far (relative) a free variable may pass a bound, or a multiplier have the
     wrong sign, before the active set changes (1e-12; 100 float32 epsilons in float32).
-    After a solve, `iterations` holds the active-set iterations it ran (factorisations of H, the
-    batch's most), `row_steps` the changes of the active rows made in their Schur complement and
-    `rescued` how many subjects needed the interior point.
+    After a solve, `iterations` holds the active-set iterations it ran (the guesses of the held
+    bounds, each one factorisation of H; the batch's most; with `start`, start's guess counts as the
+    first), `row_steps` the changes of the active rows made in their Schur complement and `rescued`
+    how many subjects needed the interior point.
     """
 
     name = "batched"
@@ -103,42 +106,40 @@ class BatchedBackend(QPBackend):
 
     def _continued(self, H, problem: QPProblem, start: Unconstrained) -> ActiveSetResult:
         """The active-set iterations for the subjects that `start`'s minimiser does not satisfy (the
-        others are solved), from the last solve's active set. Where none of them holds a bound there,
-        the first iteration's factorisation is start's (the rows are found in their Schur complement
-        with it). Only those subjects are gathered: in tracking, a few of the batch."""
+        others are solved, with nothing active), from the last solve's active set. start's guess,
+        no bound held, is the first iteration; where those subjects hold no bound in the last
+        solve's set, it goes on with start's factorisation (the rows found in their Schur complement
+        with it; a few subjects' H factorised again densely on that guess, which costs less than
+        the tree's solves, is no other iteration). Where one does, start's guess was not theirs:
+        their first iteration factorises on it and counts as a second. Only those subjects are
+        gathered: in tracking, a few of the batch."""
         upper, lower, rows = self._initial_sets(problem)
         none = torch.zeros_like(upper)
+        no_rows = None if rows is None else torch.zeros_like(rows)
         live = (~start.feasible).nonzero().flatten()
         if len(live) == 0:  # handed over for another reason (the invariant, the rotation): nothing to solve
-            no_rows: torch.Tensor | None = None if rows is None else problem.g.new_zeros(rows.shape)
-            return ActiveSetResult(start.x, torch.zeros_like(start.x), eta=no_rows, sets=(none, none.clone(), rows),
-                                   done=torch.ones_like(start.feasible), iterations=1, row_steps=0)
+            # (None without rows: ActiveSetResult's module is type-checked without strict optionals)
+            eta = cast(torch.Tensor, None if rows is None else problem.g.new_zeros(rows.shape))
+            return ActiveSetResult(start.x, torch.zeros_like(start.x), eta, (none, none.clone(), no_rows),
+                                   torch.ones_like(start.feasible), 1, 0)
         sub_H, sub = take(H, problem, live)
         sets: Sets = (upper.index_select(0, live), lower.index_select(0, live),
                       None if rows is None else rows.index_select(0, live))
+        held = bool(any_last(sets[0] | sets[1]).any())
         factor = start.factor
-        if bool(any_last(sets[0] | sets[1]).any()):
-            factor = None  # a held bound: the first iteration factorises on the free variables
-        elif isinstance(factor, TreeFactor) and not isinstance(sub_H, TreeHessian):
-            # a few subjects are solved densely (`take`): their H factorised again densely costs
-            # less than solving with the tree's factorisation, whose every solve pays a fixed time
-            # per level
+        if held or (isinstance(factor, TreeFactor) and not isinstance(sub_H, TreeHessian)):
             factor = None
         result = active_set(sub_H, sub, sets, self.active_set_iterations, self.tolerance,
                             factor=None if factor is None else factor.select(live))
 
-        def scatter(whole: torch.Tensor, part: torch.Tensor) -> torch.Tensor:
-            return whole.index_copy(0, live, part)
+        def scatter(whole, part):
+            return None if whole is None else whole.index_copy(0, live, part)
 
-        eta: torch.Tensor | None = None
-        found_rows: torch.Tensor | None = None
-        if rows is not None:
-            assert result.eta is not None and result.sets[2] is not None  # a problem with rows has them
-            eta, found_rows = scatter(problem.g.new_zeros(rows.shape), result.eta), scatter(torch.zeros_like(rows),
-                                                                                          result.sets[2])
-        found = (scatter(none, result.sets[0]), scatter(none, result.sets[1]), found_rows)
-        return ActiveSetResult(scatter(start.x, result.x), scatter(torch.zeros_like(start.x), result.nu), eta, found,
-                               scatter(torch.ones_like(start.feasible), result.done), result.iterations,
+        return ActiveSetResult(scatter(start.x, result.x), scatter(torch.zeros_like(start.x), result.nu),
+                               scatter(None if rows is None else problem.g.new_zeros(rows.shape), result.eta),
+                               (scatter(none, result.sets[0]), scatter(none.clone(), result.sets[1]),
+                                scatter(no_rows, result.sets[2])),
+                               scatter(torch.ones_like(start.feasible), result.done), result.iterations + held,
                                result.row_steps)
 
     def _kkt_tolerance(self, dtype) -> float:
