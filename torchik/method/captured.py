@@ -14,10 +14,10 @@ What depends on the data becomes two flags, read in the step's one synchronisati
   solution, as the PIQP backend finds it: no solver runs), the new base rotation is near enough to
   SO(3) for Newton-Schulz, and the invariant holds. Then the replayed step is complete. Otherwise
   (a bound active, mostly) the captured step hands its QP to the backend with its unconstrained
-  solve (`qp.Unconstrained`: the minimiser, which subjects it satisfies, and on the tree the
-  factorisation): the backend solves only the other subjects, from that factorisation where they
-  hold no bound (iCub's coupled rows, in their Schur complement). The tracker ends the step as the
-  eager one does (integration, invariant).
+  solve (`qp.Unconstrained`: the minimiser, which subjects it satisfies, and on the tree of a model
+  with coupled limits the factorisation): the backend solves only the other subjects, from that
+  factorisation where they hold no bound (iCub's coupled rows, in their Schur complement). The
+  tracker ends the step as the eager one does (integration, invariant).
 
 The replay needs a settled history (two steps taken, no dropped target remembered). A replayed
 step's results are the eager step's to rounding (fused sums in another order; 1e-12 on the states
@@ -113,10 +113,10 @@ class CapturedStep:
             return None
         assert self._compiled is not None  # captured above
         p, R, R_o, s, nu, slope, mnte, residual_norm, active, flags, g, lb, ub, h, *rest = self._compiled(*inputs)
-        # H [B,N,N], or the tree's form of H (axes, node and position weights) and its factorisation's
-        # parts; then the targets' copies
+        # H [B,N,N], or the tree's form of H (axes, node and position weights) and, with coupled
+        # rows, its factorisation's parts; then the targets' copies
         copies, rest = rest[-4:], rest[:-4]
-        dense = len(rest) == 1
+        dense = not self.batch.structured
         hessian, factor = rest[:3], rest[3:]
         usual, solvable = flags[:2].tolist()
         if not solvable:
@@ -133,7 +133,7 @@ class CapturedStep:
             assert tree is not None  # the step's H is in the tree's form only where the model has one
             problem = QPProblem(None, g, lb, ub, G, None if G is None else h,
                                 TreeHessian(tree, hessian[0], hessian[1], hessian[2], self.settings.damping))
-            made = TreeFactor.from_parts(tree, factor)
+            made = TreeFactor.from_parts(tree, factor) if factor else None
         return Replayed(**done, problem=problem, start=Unconstrained(nu, flags[2:], made))
 
     def _time_step(self, dt) -> torch.Tensor | None:
@@ -182,8 +182,14 @@ class CapturedStep:
         problem = task.problem
         h = problem.h if problem.h is not None else problem.g.new_zeros(())  # a placeholder: no coupled rows
         tree = problem.tree
-        if tree is None:  # a dense H's factorisation is not returned: a few subjects' is cheap to make again
+        # the factorisation is returned only where coupled rows make the backend's turn frequent and
+        # its first iteration able to use it (iCub): returned, it cannot share its memory with
+        # other intermediates (Human66 at B = 1024: 13.3 against 12.7 ms a step); a dense H's, a
+        # few subjects', is cheap to make again
+        if tree is None:
             hessian: tuple = (problem.H,)
+        elif batch.linear_rows is None:
+            hessian = (tree.axes, tree.node_weight, tree.position_weight)
         else:
             assert isinstance(start.factor, TreeFactor)  # made from the tree
             hessian = (tree.axes, tree.node_weight, tree.position_weight, *start.factor.parts())
