@@ -3,8 +3,8 @@
 Both trackers step the same B subjects for the same steps (after the bench's warm-up); per step
 the tracker's own timings are kept: the whole step and, where the backend ran, its QP. Printed per
 tracker: the step's median, the steps whose QP the backend solved and their QP's median, and the
-mean active-set iterations of those (the batch's most; a captured step's first iteration is its
-unconstrained factorisation).
+mean active-set iterations of those (the batch's most; a captured step's backend counts the captured
+factorisation's guess, no bound held, as its first).
 
     python experiments/captured_qp_share.py [--model icub] [--batch 1024] [--steps 300] [--threads 2]
 
