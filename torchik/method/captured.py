@@ -182,10 +182,9 @@ class CapturedStep:
         problem = task.problem
         h = problem.h if problem.h is not None else problem.g.new_zeros(())  # a placeholder: no coupled rows
         tree = problem.tree
-        # the factorisation is returned only where coupled rows make the backend's turn frequent and
-        # its first iteration able to use it (iCub): returned, it cannot share its memory with
-        # other intermediates (Human66 at B = 1024: 13.3 against 12.7 ms a step); a dense H's, a
-        # few subjects', is cheap to make again
+        # the tree's factorisation is returned only where coupled rows make the backend's turn
+        # frequent and its first iteration able to use it (iCub): returned, it cannot share its
+        # memory with other intermediates (Human66 at B = 1024: 13.3 against 12.7 ms a step)
         if tree is None:
             hessian: tuple = (problem.H,)
         elif batch.linear_rows is None:

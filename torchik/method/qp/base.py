@@ -7,7 +7,6 @@ from dataclasses import dataclass
 
 import torch
 
-from .dense import DenseFactor
 from .rows import row_values
 from .tree import TreeFactor, TreeHessian
 
@@ -72,13 +71,14 @@ class QPSolution:
 @dataclass(frozen=True)
 class Unconstrained:
     """A problem's unconstrained minimiser x = -H^-1 g [B,N], where it is already the QP's solution
-    (feasible [B]) and the factorisation of H with every variable free that gave it (a TreeFactor
-    or a DenseFactor; None where not kept): the first iteration of an active-set method that starts
-    with no bound held, done already (by the captured step, which hands it to the backend with its QP)."""
+    (feasible [B]) and, on the tree, the factorisation of H with every variable free that gave it
+    (None for a dense H: a few subjects' is cheap to make again): the first iteration of an
+    active-set method that starts with no bound held, done already (by the captured step, which
+    hands it to the backend with its QP)."""
 
     x: torch.Tensor
     feasible: torch.Tensor
-    factor: "TreeFactor | DenseFactor | None"
+    factor: "TreeFactor | None"
 
 
 class QPBackend(ABC):
@@ -101,17 +101,18 @@ def unconstrained(problem: QPProblem) -> Unconstrained:
     (strictly, no tolerance) is the constrained optimum too; a solver is needed only elsewhere.
     feasible is False also where H is not numerically positive definite.
     """
-    factor: TreeFactor | DenseFactor
+    factor = None
     if problem.tree is not None:
-        tree = problem.tree.factor(torch.ones_like(problem.g, dtype=torch.bool))
-        x, positive, factor = tree.solve(-problem.g.unsqueeze(-1)).squeeze(-1), tree.positive, tree
+        factor = problem.tree.factor(torch.ones_like(problem.g, dtype=torch.bool))
+        x, positive = factor.solve(-problem.g.unsqueeze(-1)).squeeze(-1), factor.positive
     else:
-        dense = DenseFactor.all_free(problem.dense_hessian)
-        # two triangular solves: cholesky_solve does the same with copies and checks that cost, for
+        # LAPACK's upper factor: torch makes the lower one from a transposed copy and clears it
+        # above the diagonal (one subject's [72,72] H: 63 against 73 us with the solves). Two
+        # triangular solves: cholesky_solve does the same with copies and checks that cost, for
         # one subject, twice as much again
-        x = torch.linalg.solve_triangular(dense.L, -problem.g.unsqueeze(-1), upper=False)
-        x = torch.linalg.solve_triangular(dense.L.transpose(-1, -2), x, upper=True).squeeze(-1)
-        positive, factor = dense.info == 0, dense
+        U, info = torch.linalg.cholesky_ex(problem.dense_hessian, upper=True)
+        x = torch.linalg.solve_triangular(U.transpose(-1, -2), -problem.g.unsqueeze(-1), upper=False)
+        x, positive = torch.linalg.solve_triangular(U, x, upper=True).squeeze(-1), info == 0
     # within every bound, and finite: Inf - Inf and NaN are not 0
     feasible = positive & (x.clamp(problem.lb, problem.ub) - x == 0).all(-1)
     if (rows := problem.rows) is not None:

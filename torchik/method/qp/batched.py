@@ -37,7 +37,7 @@ from .active_set import ActiveSetResult, Sets, active_set, any_last, take
 from .base import QPBackend, QPProblem, QPSolution, Unconstrained, clipped_fallback
 from .dense import DenseHessian
 from .interior_point import interior_point
-from .tree import TreeFactor, TreeHessian
+from .tree import TreeHessian
 
 
 class BatchedBackend(QPBackend):
@@ -127,7 +127,7 @@ class BatchedBackend(QPBackend):
                       None if rows is None else rows.index_select(0, live))
         held = bool(any_last(sets[0] | sets[1]).any())
         factor = start.factor
-        if held or (isinstance(factor, TreeFactor) and not isinstance(sub_H, TreeHessian)):
+        if held or not isinstance(sub_H, TreeHessian):  # gathered densely (`take`): refactorised densely
             factor = None
         result = active_set(sub_H, sub, sets, self.active_set_iterations, self.tolerance,
                             factor=None if factor is None else factor.select(live))

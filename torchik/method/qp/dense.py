@@ -35,17 +35,6 @@ class DenseFactor:
         reduced = H * (f[:, :, None] * f[:, None, :]) + torch.diag_embed(1 - f)
         self.L, self.info = torch.linalg.cholesky_ex(reduced)
 
-    @classmethod
-    def all_free(cls, H: torch.Tensor) -> "DenseFactor":
-        """H with every variable free (no masking to do). L is the transpose of LAPACK's upper
-        factor: for one subject's [72,72] H that factorisation and its solves take 63 against 73 us
-        the lower one's (which torch makes from a transposed copy and clears above the diagonal)."""
-        factor = object.__new__(cls)
-        factor.H, factor.free = H, torch.ones(H.shape[:2], dtype=H.dtype, device=H.device)
-        upper, factor.info = torch.linalg.cholesky_ex(H, upper=True)
-        factor.L = upper.transpose(-1, -2)
-        return factor
-
     def select(self, subjects: torch.Tensor) -> "DenseFactor":
         """The factorisation of the subjects [k] (indices), without factorising again."""
         picked = object.__new__(DenseFactor)
