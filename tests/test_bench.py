@@ -48,3 +48,19 @@ def test_with_compile_each_batch_size_has_a_captured_row_after_its_eager_one(mon
     for r in results[1::2]:
         assert r.compile_seconds is not None and r.iterations_mean == 1.0  # every timed step replayed, no bound active
     assert "batched compiled, the capture's time" in table(results)
+
+
+def test_with_compile_a_step_that_cannot_be_captured_stops_the_bench_with_exit_code_2(monkeypatch, capsys):
+    """No row named compiled may hold an eager step's figures: where the capture fails, the bench
+    stops and says so."""
+    from torchik.method.capture import CaptureError
+
+    def fails(fn, inputs):
+        raise CaptureError("could not compile the step (no compiler, for this test)")
+
+    monkeypatch.setattr(captured, "capture", fails)
+    with pytest.warns(UserWarning, match="runs eagerly"):
+        code = main(["bench", "--models", "human48", "--batch", "3", "--no-loops", "--compile", "--max-steps", "3",
+                     "--seconds", "0.2", "--quiet"])
+    assert code == 2
+    assert "--compile: the step could not be captured here" in capsys.readouterr().err

@@ -43,6 +43,7 @@ import numpy as np
 import torch
 
 from ..errors import optional
+from ..method.capture import CaptureError
 from ..method.models import MODELS
 from ..method.qp import BatchedBackend
 from ..method.settings import TrackerSettings
@@ -129,7 +130,16 @@ def prepared_tracker(name: str, batch: int, device: str, dtype, steps: int, warm
     tracker.reset(type(state)(*(x.to(device) for x in vars(state).values())), batch=batch)
     for k in range(warmup):
         tracker.step(sequence[k])
+    _require_capture(tracker, compiled)
     return tracker, sequence
+
+
+def _require_capture(tracker, compiled: bool) -> None:
+    """Raises where a compiled pipeline's step could not be captured: its steps would run eagerly
+    under the compiled pipeline's name."""
+    if compiled and (tracker.captured is None or tracker.captured.unavailable):
+        raise CaptureError("--compile: the step could not be captured here (the warning above says why), "
+                           "so no compiled figure can be measured; run without --compile")
 
 
 def _targets(model, motion, links, device: str):
@@ -172,6 +182,7 @@ def bench_torchik_loop(name: str, steps: int, warmup: int = 10, compiled: bool =
     targets = [sequence[k] for k in range(warmup + steps)]  # sliced before the clock starts, as pinocchio's arrays
     for k in range(warmup):
         tracker.step(targets[k])
+    _require_capture(tracker, compiled)
     active, times = [], []
     for k in range(warmup, warmup + steps):
         start = time.perf_counter()
