@@ -1,6 +1,6 @@
 """capture: while it compiles, TorchInductor's notices that an operation has no C shim (called
 through the dispatcher instead, nothing a user can act on) are dropped, its other messages kept,
-and the logger is as it was afterwards."""
+and the logger is as it was afterwards; options this torch lacks are not asked for."""
 
 import logging
 
@@ -18,3 +18,15 @@ def test_no_shim_notices_are_dropped_while_compiling_and_other_messages_kept(cap
         logger.warning(NOTICE, "aten.linalg_solve_triangular.default")
     messages = [record.getMessage() for record in caplog.records]
     assert messages == ["another warning", NOTICE % "aten.linalg_solve_triangular.default"]
+
+
+def test_fused_multiply_adds_are_asked_for_only_where_this_torch_has_the_option(monkeypatch):
+    """An option this torch does not know would fail the whole capture: it is left out there."""
+    from torch._inductor import config
+
+    from torchik.method.capture import _contraction
+
+    if isinstance(getattr(config.cpp, "enable_floating_point_contract_flag", None), str):  # torch 2.13 has it
+        assert _contraction() == {"cpp.enable_floating_point_contract_flag": "fast"}
+    monkeypatch.delattr(config.cpp, "enable_floating_point_contract_flag", raising=False)
+    assert _contraction() == {}

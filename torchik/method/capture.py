@@ -70,13 +70,22 @@ def capture(fn: Callable[..., Sequence[torch.Tensor]], inputs: Sequence[torch.Te
             # one: not a CUDA graph, whose outputs the next replay would overwrite while the tracker
             # still holds them (the state, two steps of targets)
             cpu = all(t.device.type == "cpu" for t in inputs)
-            patches = {"cpp_wrapper": True, "cpp.enable_floating_point_contract_flag": "fast"} if cpu else {}
+            patches = {"cpp_wrapper": True, **_contraction()} if cpu else {}
             with _quiet_fallbacks():
                 compiled: Any = compile_fx(graph, examples, config_patches=patches)
                 compiled(*examples)  # the first call finishes the compilation
     except Exception as error:  # an environment without a compiler fails in many ways
         raise CaptureError(f"could not compile the step ({type(error).__name__}: {str(error).splitlines()[0]})") from error
     return compiled
+
+
+def _contraction() -> dict:
+    """The C++ compiler's license to fuse multiply-adds, where this torch has the option (a string in
+    torch 2.13): an unknown key would fail the whole capture on an older torch, which pyproject allows."""
+    from torch._inductor import config
+
+    option = getattr(config.cpp, "enable_floating_point_contract_flag", None)
+    return {"cpp.enable_floating_point_contract_flag": "fast"} if isinstance(option, str) else {}
 
 
 class _NoShimNotice(logging.Filter):
