@@ -5,11 +5,11 @@ agrees to 1e-12 too."""
 
 import dataclasses
 import math
-import shutil
 import warnings
 
 import pytest
 import torch
+from compilers import missing_compiler
 
 import torchik.method.capture as capture_module
 import torchik.method.captured as captured_module
@@ -203,21 +203,6 @@ def test_a_dt_of_the_wrong_shape_is_refused_as_the_eager_step_refuses_it(walking
         tracker.step(sequence[k])
     with pytest.raises(InputError, match="dt"):
         tracker.step(sequence[3], dt=torch.full((2,), 0.01, dtype=torch.float64))
-
-
-def missing_compiler(device: str) -> str | None:
-    """Why TorchInductor has no compiler for `device` on this machine, or None where it has one."""
-    if device == "cuda":
-        from torch.utils._triton import has_triton
-
-        return None if has_triton() else "Triton is not installed"
-    from torch._inductor import cpp_builder
-
-    try:
-        compiler = cpp_builder.get_cpp_compiler()
-    except Exception as error:  # noqa: BLE001 - whatever stops TorchInductor finding one
-        return f"no C++ compiler ({error})"
-    return None if shutil.which(compiler) else f"no C++ compiler ({compiler} not found)"
 
 
 def captured_by(tracker: DynamicalIK, first_steps: TargetSequence, device: str) -> None:
