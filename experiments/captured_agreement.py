@@ -5,7 +5,7 @@ that of a second captured run from the same start (zero: the captured step is re
     python experiments/captured_agreement.py [--model human66] [--batch 1024] [--steps 60] [--device cuda] [--solvers]
 
 With --solvers, the eager step's own two solves of the same run are compared too: on the joints'
-tree (the batch's usual one from `BatchSetup.TREE_FROM` subjects) and dense. Their difference is
+tree (whatever the batch size) and dense. Their difference is
 the rounding the model's QP amplifies (iCub's, damped by 1e-9 at its shoulders' gimbal locks, a
 billionfold), the scale against which the captured step's difference is read.
 

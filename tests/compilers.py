@@ -1,5 +1,5 @@
-"""Whether TorchInductor can compile here: the tests that compile skip only where it cannot, and
-fail where a capture fails with a compiler present (that is the code's fault)."""
+"""Whether TorchInductor has a compiler here: the tests that compile skip only where it has none,
+and fail where a capture fails with a compiler present (the code or the set-up is then to mend)."""
 
 import shutil
 

@@ -207,8 +207,9 @@ def test_a_dt_of_the_wrong_shape_is_refused_as_the_eager_step_refuses_it(walking
 
 def captured_by(tracker: DynamicalIK, first_steps: TargetSequence, device: str) -> None:
     """Runs the steps that capture the tracker's step. Skips where this machine has no compiler for
-    `device`; where it has one, a capture that fails is the code's fault and fails the test with the
-    capture's message (the tracker alone would only warn and run eagerly)."""
+    `device`; where it has one, a failed capture fails the test with the capture's message (the code
+    or the set-up, headers or OpenMP say, is then to mend: the tracker alone would only warn and run
+    eagerly)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         tracker.run(first_steps)

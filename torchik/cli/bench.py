@@ -33,7 +33,8 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--compile", action="store_true",
                         help="also each batch size's step captured and replayed compiled (TrackerSettings(compile=True)), "
                              "after its eager one; the capture (up to minutes the first time on a machine) is not timed; "
-                             "where it cannot be made here (no compiler) the bench stops with exit code 2")
+                             "where it cannot be made here (no compiler) the bench stops with exit code 2, "
+                             "printing no table and writing no JSON")
     parser.add_argument("--loop-steps", type=int, default=200, help="steps timed per loop (default 200)")
     parser.add_argument("--seconds", type=positive, default=2.0, help="time per batched measurement, at most (default 2)")
     parser.add_argument("--max-steps", type=int, default=50, help="steps per batched measurement, at most (default 50)")

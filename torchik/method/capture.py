@@ -80,8 +80,9 @@ def capture(fn: Callable[..., Sequence[torch.Tensor]], inputs: Sequence[torch.Te
 
 
 def _contraction() -> dict:
-    """The C++ compiler's license to fuse multiply-adds, where this torch has the option (a string in
-    torch 2.13): an unknown key would fail the whole capture on an older torch, which pyproject allows."""
+    """The C++ compiler's license to fuse multiply-adds, asked for where this torch's option takes
+    "fast" (a string, as in torch 2.13); elsewhere the compiler's default. An unknown key would fail
+    the whole capture on an older torch, which pyproject allows."""
     from torch._inductor import config
 
     option = getattr(config.cpp, "enable_floating_point_contract_flag", None)

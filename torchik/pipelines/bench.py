@@ -38,6 +38,7 @@ import contextlib
 import math
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -47,6 +48,9 @@ from ..method.capture import CaptureError
 from ..method.models import MODELS
 from ..method.qp import BatchedBackend
 from ..method.settings import TrackerSettings
+
+if TYPE_CHECKING:
+    from ..method.tracker import DynamicalIK
 
 BATCHES = (1, 64, 1024, 8192)
 LOOPS = ("torchik+piqp", "torchik compiled", "pinocchio+daqp", "pinocchio+piqp")
@@ -134,7 +138,7 @@ def prepared_tracker(name: str, batch: int, device: str, dtype, steps: int, warm
     return tracker, sequence
 
 
-def _require_capture(tracker, compiled: bool) -> None:
+def _require_capture(tracker: DynamicalIK, compiled: bool) -> None:
     """Raises where a compiled pipeline's step could not be captured: its steps would run eagerly
     under the compiled pipeline's name."""
     if compiled and (tracker.captured is None or tracker.captured.unavailable):
