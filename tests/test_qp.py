@@ -2,7 +2,7 @@
 
 import torch
 
-from torchik.method.qp import PiqpBackend, QPProblem, clipped_fallback, unconstrained_if_feasible
+from torchik.method.qp import PiqpBackend, QPProblem, clipped_fallback, unconstrained
 
 
 def random_problem(B: int, N: int, seed: int) -> QPProblem:
@@ -54,14 +54,13 @@ def test_a_feasible_unconstrained_minimiser_is_returned_without_the_solver_and_e
 
     problem = random_problem(6, 10, 4)
     wide = QPProblem(problem.H, problem.g, torch.full_like(problem.lb, -1e3), torch.full_like(problem.ub, 1e3))
-    x, feasible = unconstrained_if_feasible(wide)
-    assert bool(feasible.all())
+    start = unconstrained(wide)
+    assert bool(start.feasible.all())
     for b in range(6):
         reference = qpsolvers.solve_qp(wide.H[b].numpy(), wide.g[b].numpy(), lb=wide.lb[b].numpy(), ub=wide.ub[b].numpy(),
                                        solver="piqp", eps_abs=1e-10, eps_rel=1e-11)
-        assert torch.allclose(x[b], torch.tensor(reference), atol=1e-7)
+        assert torch.allclose(start.x[b], torch.tensor(reference), atol=1e-7)
     # with tight bounds the minimiser is infeasible for some rows, which then go to PIQP
-    x, feasible = unconstrained_if_feasible(problem)
-    assert not bool(feasible.all())
+    assert not bool(unconstrained(problem).feasible.all())
     solution = PiqpBackend().solve(problem)
     assert bool((solution.x >= problem.lb - 1e-9).all() and (solution.x <= problem.ub + 1e-9).all())

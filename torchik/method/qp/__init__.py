@@ -7,7 +7,7 @@ the whole batch at once in torch (CPU or GPU) by a primal-dual active-set method
 step's tree structure (`TreeHessian`) when the problem carries it.
 """
 
-from .base import QPBackend, QPProblem, QPSolution, Unconstrained, clipped_fallback, unconstrained, unconstrained_if_feasible
+from .base import QPBackend, QPProblem, QPSolution, Unconstrained, clipped_fallback, unconstrained
 from .batched import BatchedBackend
 from .dense import DenseHessian
 from .piqp_backend import PiqpBackend
@@ -26,5 +26,5 @@ def make_backend(name: str, **options) -> QPBackend:
 
 
 __all__ = ["QPBackend", "QPProblem", "QPSolution", "PiqpBackend", "BatchedBackend", "DenseHessian", "JointTree",
-           "TreeHessian", "Unconstrained", "clipped_fallback", "unconstrained", "unconstrained_if_feasible",
-           "make_backend", "BACKENDS"]
+           "TreeHessian", "Unconstrained", "clipped_fallback", "unconstrained", "make_backend",
+           "BACKENDS"]

@@ -121,12 +121,6 @@ def unconstrained(problem: QPProblem) -> Unconstrained:
     return Unconstrained(x, feasible, factor)
 
 
-def unconstrained_if_feasible(problem: QPProblem) -> tuple[torch.Tensor, torch.Tensor]:
-    """`unconstrained(problem)`'s x [B,N] and feasible [B] bool."""
-    start = unconstrained(problem)
-    return start.x, start.feasible
-
-
 def clipped_fallback(problem: QPProblem) -> torch.Tensor:
     """The nearest feasible velocity a failed solve can fall back to. -> [B,N]
 

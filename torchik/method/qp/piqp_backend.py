@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .base import QPBackend, QPProblem, QPSolution, Unconstrained, clipped_fallback, unconstrained_if_feasible
+from .base import QPBackend, QPProblem, QPSolution, Unconstrained, clipped_fallback, unconstrained
 
 
 class PiqpBackend(QPBackend):
@@ -31,7 +31,8 @@ class PiqpBackend(QPBackend):
               start: Unconstrained | None = None) -> QPSolution:
         # Where the unconstrained minimiser already satisfies every limit it is the exact solution;
         # PIQP is called for the other subjects only.
-        x, done = unconstrained_if_feasible(problem) if start is None else (start.x.clone(), start.feasible)
+        start = unconstrained(problem) if start is None else start
+        x, done = start.x.clone(), start.feasible  # x: PIQP's subjects are written into it below
         if bool(done.all()):
             return QPSolution(x, done)
         rows = (~done).nonzero().flatten().tolist()
