@@ -1,16 +1,23 @@
-"""The diagnosis tried on recordings it shares no assumption with, scored against what was injected.
+"""The diagnosis tried on recordings of simulated sensors, which share none of its equations, scored
+against what the simulation put in.
 
-    python experiments/diagnosis_study.py [--seeds 10] [--pairs 10] [--clean 20] [--duration 12]
-                                          [--families F1,F2] [--json FILE] [--markdown FILE] [--recordings DIR]
+    python experiments/diagnosis_study.py [--seeds 10] [--clean 10] [--several 10] [--first-seed 1000]
+                                          [--families F1,F2] [--duration 12] [--rate 100] [--jobs 2]
+                                          [--json FILE] [--markdown FILE] [--recordings DIR]
 
-Recordings come from experiments/diagnosis_generator.py: the published Human48 (Human66 for a
-missing axis) through pinocchio's kinematics, not torchik's, with white, AR(1) or 1/f noise.
+Recordings come from experiments/sensor_physics.py (pinocchio's Human48, Human66 for a missing axis;
+IMUs simulated through a strap, a gyro, an accelerometer, a magnetometer and a complementary filter;
+or marker clusters fitted by Kabsch): one effect of a family on 1-4 sensors (stream_delay on all,
+sensor_delay and missing_axis on one), the same family on four sensors at once (--several), and
+clean suits of both kinds. Each seed's recordings share their motion and noise across families.
 
-Each recording carries one effect of a family (FAMILIES, on random links with random sizes over
-the ranges of diagnosis_generator.draw), two effects of different families, or none. `torchik.diagnose` (the library
-API, Human48 as `torchik diagnose --model human48` builds it) runs on each; scored: every injected
-effect named on its links, spurious effects kept, nothing on clean ones, and the MNTE after against
-tracking the same recording without the effect (same motion and noise).
+`torchik.diagnose` (Human48, as `torchik diagnose --model human48` builds it) runs on each; scored per
+injected sensor (or joint): named when the diagnosis keeps an effect of a kind that names the family
+(sensor_physics.KINDS) on that link; per recording: every target named, and nothing spurious (a kept
+effect on no injected target, or of another kind). A clean recording must keep nothing.
+
+Tune on some seeds and report on others: the default --first-seed (1000) is the reported set; the
+diagnosis was tuned on seeds 0-99 and 100-199 (`--first-seed 0`, `--first-seed 100`).
 """
 
 from __future__ import annotations
@@ -18,6 +25,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -25,62 +33,115 @@ from types import SimpleNamespace
 
 import numpy as np
 import torch
-from diagnosis_generator import FAMILIES, NOISES, OPTIONAL, Case, Injected, generate
+from sensor_physics import FAMILIES, Injected, generate
 
-# ------------------------------------------------------------------------------ scoring
-SIZE = {"misalignment": lambda p: np.degrees(np.linalg.norm(p["rotation_vector"])),
-        "gyro_bias": lambda p: np.degrees(np.linalg.norm(p["bias"])), "gyro_scale": lambda p: 100 * p["scale_error"],
+STUDIED = tuple(f for f in FAMILIES if f not in ("clean", "optical_clean"))
+# on four sensors at once (vertical_bias draws at most one sensor of each of sensor_physics.UPRIGHT_GROUPS: three)
+SEVERAL = ("strap", "gyro_bias", "tilt_filter_bias", "magnetic_drift", "gyro_scale", "cluster_offset")
+SIZE = {"misalignment": lambda p: math.degrees(np.linalg.norm(p["rotation_vector"])),
+        "gyro_bias": lambda p: math.degrees(np.linalg.norm(p["bias"])), "gyro_scale": lambda p: 100 * p["scale_error"],
         "stream_delay": lambda p: 1e3 * p["delay"], "sensor_delay": lambda p: 1e3 * p["delay"],
-        "heading_drift": lambda p: np.degrees(p["rate"]),
-        "missing_dof": lambda p: np.degrees(0.5 * (p["angle_range"][1] - p["angle_range"][0]))}
+        "heading_drift": lambda p: math.degrees(p["rate"]),
+        "missing_dof": lambda p: math.degrees(0.5 * (p["angle_range"][1] - p["angle_range"][0]))}
+SHARED = {"vertical_bias": True, "magnetic_drift": False}  # the heading drift's kind each family is (gyro_shares)
+# Families seen only in the orientations (the others also in the gyro's disagreement with them, which no
+# joint absorbs): an effect of these is identifiable when, taken out of the recording (the same motion
+# and noise), the residual the tracker leaves changes by VISIBLE on some link (rms over the time after
+# the first TRANSIENT seconds): the joints do not follow it all.
+IN_ORIENTATIONS = ("strap", "cluster_offset", "vertical_bias", "sensor_delay")
+VISIBLE = 1.0  # deg, the misalignment's floor: less changes nothing anyone reports
+TRANSIENT = 2.0  # s
 
 
-def judge(injected: list[Injected], effects) -> dict:
-    """Which injected effects were named on their links, which kept effects name none (spurious)."""
-    matched, named, sizes = set(), [], []
+def residual_angles(model, recording, links) -> np.ndarray:
+    """[T,L] the angle (deg) between each link's measured orientation and what torchik's tracker estimates."""
+    import torchik as tk
+    from torchik.pipelines.evaluation import link_motion
+
+    trajectory, _ = tk.track(model, recording, links)
+    R_hat = link_motion(model, trajectory, links)[0][:, 0].numpy()
+    R_m = recording.orientation[:, [recording.links.index(n) for n in links]]
+    cos = (np.trace(np.swapaxes(R_m, -1, -2) @ R_hat, axis1=-2, axis2=-1) - 1) / 2
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def visibility(case: dict, injected: list[Injected], recording, model, links, args) -> dict[str, float]:
+    """Per target of an effect seen only in the orientations (IN_ORIENTATIONS, or tilt_filter_bias with
+    compensated rates): how much the tracked residual changes without it (deg, the largest rms over the
+    links after TRANSIENT); the targets of other effects are left out (always identifiable)."""
+    out = {}
+    angles = None
     for inj in injected:
-        found_all = True
+        if not (inj.family in IN_ORIENTATIONS or (inj.family == "tilt_filter_bias" and inj.extra.get("compensated"))):
+            continue
+        for target in inj.targets:
+            without = generate(case["seed"], case["family"], case.get("count"), links, args.duration, args.rate,
+                               remove=(target,))[0]
+            angles = residual_angles(model, recording, links) if angles is None else angles
+            change = residual_angles(model, without, links) - angles
+            keep = recording.time >= recording.time[0] + TRANSIENT
+            out[target] = float(np.sqrt(np.mean(change[keep] ** 2, axis=0)).max())
+    return out
+
+
+def judge(injected: list[Injected], effects, seen: dict[str, float]) -> dict:
+    """Per injected target, whether it was named and whether the data can see it (seen: visibility's
+    change, absent for the always identifiable); the kept effects that name none (spurious); the sizes found.
+    A recording's `named`: every identifiable target named."""
+    matched, targets, sizes, variants = set(), [], [], []
+    for inj in injected:
         for target, size in zip(inj.targets, inj.sizes):
-            hit = [k for k, e in enumerate(effects) if e.kind in inj.kinds() and e.target == target]
-            found_all &= bool(hit)
-            matched.update(hit)
-            sizes += [dict(family=inj.family, target=target, injected=float(size),
-                           found=float(SIZE[effects[k].kind](effects[k].params))) for k in hit[:1]]
-        # a device's delay found on single gyros: the right cause, not spurious, not named as one
-        matched.update(k for k, e in enumerate(effects) if inj.family == "stream_delay" and e.kind == "stream_delay")
-        named.append(found_all)
+            hit = [k for k, e in enumerate(effects) if e.kind in inj.kinds()
+                   and (e.target == target or (inj.family == "stream_delay" and e.kind == "stream_delay"))]
+            # the report names it as the equal of the effect it kept (same kind, a related link, the same fit):
+            # the data cannot tell which (loop._choose's "explained nearly as well by")
+            rival = [k for k, e in enumerate(effects) if e.kind in inj.kinds() and k not in hit
+                     and f"explained nearly as well by {e.kind} at {target} " in e.notes]
+            matched.update(hit + rival)
+            targets.append(dict(family=inj.family, target=target, named=bool(hit or rival), as_rival=bool(rival and not hit),
+                                change_deg=seen.get(target), identifiable=seen.get(target, math.inf) >= VISIBLE))
+            for k in hit[:1]:
+                e = effects[k]
+                sizes.append(dict(family=inj.family, target=target, kind=e.kind, injected=float(size),
+                                  found=float(SIZE[e.kind](e.params)) if e.kind in SIZE else None))
+                if inj.family in SHARED and e.kind == "heading_drift":
+                    variants.append(bool(e.params.get("gyro_shares")) == SHARED[inj.family])
     spurious = [f"{e.kind} at {e.target}" for k, e in enumerate(effects) if k not in matched]
-    return dict(named=all(named), spurious=spurious, sizes=sizes)
+    return dict(named=all(t["named"] for t in targets if t["identifiable"]), targets=targets, spurious=spurious,
+                sizes=sizes, right_variant=variants)
 
 
-def run_case(case: Case, model, urdf: str, links, args) -> dict:
+def run_case(case: dict, model, urdf: str, links, args) -> dict:
     from torchik import diagnose
-    from torchik.pipelines.diagnosis.analysis import analyse
-    from torchik.pipelines.diagnosis.loop import errors
 
-    recording, clean, injected, noise = generate(case, links, args.duration, args.rate, args.gyro_frame)
+    recording, injected, info = generate(case["seed"], case["family"], case.get("count"), links, args.duration,
+                                         args.rate)
     start = time.perf_counter()
     d = diagnose(model, urdf, [recording], links, max_effects=args.max_effects)[0]
     seconds = time.perf_counter() - start
-    reference = errors(analyse(model, [clean], links), 0).overall["mnte"]
-    verdict = judge(injected, d.effects)
-    return dict(seed=case.seed, group=case.group, families=list(case.families), noise=noise, seconds=seconds,
+    seen = visibility(case, injected, recording, model, links, args)
+    return dict(case, group=case["group"], seconds=seconds, generated_s=info["seconds"], noise=info["noise"],
+                orientation_error_deg=info["orientation_error_deg"],
                 injected=[dict(family=i.family, targets=i.targets, sizes=[float(x) for x in i.sizes], unit=i.unit)
                           for i in injected],
-                kept=[e.summary() for e in d.effects], rejected=[f"{e.kind} at {e.target}: {e.notes}" for e in d.rejected],
-                complete=d.complete, stop=d.stop, noise_share=d.noise.share if d.noise else None,
-                mnte_before=d.before.overall["mnte"], mnte_after=d.after.overall["mnte"], mnte_clean=reference, **verdict)
+                kept=[e.summary() for e in d.effects], negligible=[e.summary() for e in d.negligible],
+                rejected=[f"{e.kind} at {e.target}: {e.notes}" for e in d.rejected], stop=d.stop,
+                mnte_before=d.before.overall["mnte"], mnte_after=d.after.overall["mnte"],
+                **judge(injected, d.effects, seen))
 
 
-def cases(args) -> list[Case]:
-    rng = np.random.default_rng(args.seed)
-    out = [Case(args.seed * 10000 + 100 * f + s, (family,), NOISES[(f + s) % len(NOISES)])
-           for f, family in enumerate(args.families) for s in range(args.seeds)]
-    for k in range(args.pairs):
-        pair = tuple(str(x) for x in rng.choice(args.families, 2, replace=False))
-        out.append(Case(args.seed * 10000 + 5000 + k, pair, NOISES[k % len(NOISES)]))
-    out += [Case(args.seed * 10000 + 7000 + k, (), NOISES[k % len(NOISES)]) for k in range(args.clean)]
-    return [case for case in out if not args.only or case.seed in args.only]
+def cases(args) -> list[dict]:
+    """The study's recordings: each family on seeds first_seed.., the --several families on four sensors,
+    clean suits of IMUs and of marker clusters."""
+    out = []
+    for family in args.families:
+        out += [dict(group=family, family=family, seed=args.first_seed + k) for k in range(args.seeds)]
+    for family in (f for f in SEVERAL if f in args.families):
+        out += [dict(group=f"{family} x4", family=family, count=4, seed=args.first_seed + 500 + k)
+                for k in range(args.several)]
+    for family in ("clean", "optical_clean"):
+        out += [dict(group=family, family=family, seed=args.first_seed + 800 + k) for k in range(args.clean)]
+    return [c for c in out if not args.only or c["seed"] in args.only]
 
 
 # ------------------------------------------------------------------------------ table
@@ -88,22 +149,33 @@ def table(results: list[dict]) -> str:
     groups: dict[str, list[dict]] = {}
     for r in results:
         groups.setdefault(r["group"], []).append(r)
-    lines = ["| recordings | n | injected named on their links | nothing spurious kept | spurious kept, per recording "
-             "| MNTE after / clean (median, max) | time (s, median, max) |", "|---|---|---|---|---|---|---|"]
+    lines = ["| recordings | n | effects named on their links | not identifiable (named) | recordings with every "
+             "identifiable effect named | nothing spurious | spurious, per recording | drift's kind right "
+             "| time (s, median, max) |", "|---|---|---|---|---|---|---|---|---|"]
     for name, rows in groups.items():
-        ratio = [r["mnte_after"] / max(r["mnte_clean"], 1e-30) for r in rows]
-        named = "-" if name == "clean" else f"{sum(r['named'] for r in rows)} of {len(rows)}"
+        targets = [t for r in rows for t in r["targets"] if t["identifiable"]]
+        hidden = [t for r in rows for t in r["targets"] if not t["identifiable"]]
+        named = "-" if not targets else f"{sum(t['named'] for t in targets)} of {len(targets)}"
+        unseen = f"{len(hidden)} ({sum(t['named'] for t in hidden)})" if hidden else "-"
+        whole = "-" if not targets else f"{sum(r['named'] for r in rows)} of {len(rows)}"
+        variants = [v for r in rows for v in r["right_variant"]]
+        variant = f"{sum(variants)} of {len(variants)}" if variants else "-"
         seconds = [r["seconds"] for r in rows]
-        lines.append(f"| {name} | {len(rows)} | {named} | {sum(not r['spurious'] for r in rows)} of {len(rows)} | "
-                     f"{', '.join(str(len(r['spurious'])) for r in rows)} | {np.median(ratio):.2f}, {max(ratio):.2f} | "
-                     f"{np.median(seconds):.0f}, {max(seconds):.0f} |")
-    effect = [r for r in results if r["group"] != "clean"]
-    clean = [r for r in results if r["group"] == "clean"]
-    ratio = [r["mnte_after"] / max(r["mnte_clean"], 1e-30) for r in results]
-    lines += ["", f"Injected effects all named on their links: {sum(r['named'] for r in effect)} of {len(effect)}; "
-              f"nothing spurious kept: {sum(not r['spurious'] for r in effect)} of {len(effect)}; "
-              f"nothing kept on clean recordings: {sum(not r['spurious'] for r in clean)} of {len(clean)}; "
-              f"MNTE after within 1.5x of the clean recording's: {sum(x <= 1.5 for x in ratio)} of {len(ratio)}."]
+        lines.append(f"| {name} | {len(rows)} | {named} | {unseen} | {whole} | {sum(not r['spurious'] for r in rows)} of "
+                     f"{len(rows)} "
+                     f"| {', '.join(str(len(r['spurious'])) for r in rows)} | {variant} | "
+                     f"{np.median(seconds):.1f}, {max(seconds):.1f} |")
+    effect = [r for r in results if r["targets"]]
+    clean = [r for r in results if not r["targets"]]
+    targets = [t for r in effect for t in r["targets"] if t["identifiable"]]
+    hidden = [t for r in effect for t in r["targets"] if not t["identifiable"]]
+    lines += ["", f"Identifiable effects named on their links: {sum(t['named'] for t in targets)} of {len(targets)} "
+              f"({100 * sum(t['named'] for t in targets) / max(len(targets), 1):.1f} %); recordings with an effect and "
+              f"nothing spurious: {sum(not r['spurious'] for r in effect)} of {len(effect)} "
+              f"({100 * sum(not r['spurious'] for r in effect) / max(len(effect), 1):.1f} %); clean recordings left "
+              f"clean: {sum(not r['spurious'] for r in clean)} of {len(clean)}. Not identifiable (the tracked residual "
+              f"changes by under {VISIBLE:g} deg without them): {len(hidden)} effects, {sum(t['named'] for t in hidden)} "
+              f"of them named all the same."]
     return "\n".join(lines)
 
 
@@ -118,7 +190,7 @@ def _start_worker(args) -> None:
     _WORKER.update(args=args, urdf=human_urdf(48), model=load_model("human48"), links=list(TRACKED_LINKS["human48"]))
 
 
-def _diagnosed(case: Case) -> dict:
+def _diagnosed(case: dict) -> dict:
     w = _WORKER
     return run_case(case, w["model"], w["urdf"], w["links"], w["args"])
 
@@ -137,22 +209,18 @@ def _pool(args):
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seeds", type=int, default=10, help="recordings per family (default 10)")
-    parser.add_argument("--pairs", type=int, default=10, help="recordings with two effects of different families")
-    parser.add_argument("--clean", type=int, default=20, help="recordings with no effect")
+    parser.add_argument("--several", type=int, default=10, help="recordings per family with it on four sensors")
+    parser.add_argument("--clean", type=int, default=10, help="clean recordings of each kind, IMUs and markers")
+    parser.add_argument("--families", type=lambda s: tuple(s.split(",")), default=STUDIED,
+                        help=f"comma-separated, of {', '.join(STUDIED)} (default all)")
     parser.add_argument("--duration", type=float, default=12.0, help="seconds per recording (default 12)")
-    parser.add_argument("--rate", type=float, default=50.0, help="frames per second (default 50)")
-    parser.add_argument("--families", type=lambda s: tuple(s.split(",")), default=FAMILIES,
-                        help=f"comma-separated, of {', '.join(FAMILIES + OPTIONAL)} (default the first six)")
+    parser.add_argument("--rate", type=float, default=100.0, help="frames per second (default 100)")
     parser.add_argument("--max-effects", type=int, default=8, help="the loop's rounds (default 8, as torchik diagnose)")
-    parser.add_argument("--seed", type=int, default=1, help="the study's seed (default 1)")
+    parser.add_argument("--first-seed", type=int, default=1000, help="the first seed (default 1000, the reported set)")
     parser.add_argument("--only", type=lambda s: {int(x) for x in s.split(",")}, default=set(),
-                        help="comma-separated seeds: only these of the study's recordings (as the table names them)")
-    parser.add_argument("--gyro-frame", choices=("true", "estimated"), default="true",
-                        help="the orientation that rotates the gyros into the world frame: the noise-free one "
-                             "(default, as the study always did) or the recording's own, as a device does "
-                             "(diagnosis_generator.generate)")
+                        help="comma-separated seeds: only these of the study's recordings")
     parser.add_argument("--jobs", type=int, default=1, help="recordings diagnosed at once, each in its own process on "
                                                            "one thread (default 1)")
     parser.add_argument("--json", metavar="FILE", help="write every recording's result here")
@@ -169,16 +237,17 @@ def main(argv=None) -> int:
 
         Path(args.recordings).mkdir(parents=True, exist_ok=True)
         for case in cases(args):
-            path = Path(args.recordings) / f"{case.group.replace(' ', '_')}_{case.seed}.npz"
-            print(save_recording(generate(case, links, args.duration, args.rate, args.gyro_frame)[0], path))
+            path = Path(args.recordings) / f"{case['group'].replace(' ', '_')}_{case['seed']}.npz"
+            recording = generate(case["seed"], case["family"], case.get("count"), links, args.duration, args.rate)[0]
+            print(save_recording(recording, path))
         return 0
     results = []
     with _pool(args) as pool:
         for case, r in zip(cases(args), pool.imap(_diagnosed, cases(args))):
             results.append(r)
-            print(f"{case.group:>14} seed {case.seed} {case.noise:>5}: {'named' if r['named'] else 'MISSED'}, "
-                  f"spurious {r['spurious']}, MNTE {r['mnte_after']:.3g} (clean {r['mnte_clean']:.3g}), "
-                  f"{r['seconds']:.0f} s", file=sys.stderr, flush=True)
+            print(f"{case['group']:>20} seed {case['seed']}: {'named' if r['named'] else 'MISSED'}"
+                  f"{'' if r['named'] else ' ' + str([t['target'] for t in r['targets'] if not t['named']])}, "
+                  f"spurious {r['spurious']}, kept {len(r['kept'])}, {r['seconds']:.1f} s", file=sys.stderr, flush=True)
     text = table(results)
     print(text)
     if args.json:

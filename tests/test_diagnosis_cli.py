@@ -49,7 +49,8 @@ def test_diagnose_writes_what_track_reuses(tmp_path, cli):
     tracking with the calibration and the URDF brings the error down to the noise's."""
     effect = MissingDof("missing_dof", "jLeftKnee", dict(axis=[1.0, 0.0, 0.0], parent="LeftUpperLeg",
                                                          child="LeftLowerLeg", first_joint="jLeftKnee_roty"))
-    truth, motion = with_missing_dof(human_urdf(48), effect, 0.2, 0.9, 0.3, duration=4.0, rate=50.0, seed=1)
+    # 6 deg either way: within what a knee's ab/adduction moves (joints.HINGE_RANGE)
+    truth, motion = with_missing_dof(human_urdf(48), effect, 0.1, 0.9, 0.3, duration=4.0, rate=50.0, seed=1)
     clean = recording_of(truth, motion, LINKS, 1, 0.005, 0.02)
     misaligned = Misalignment("misalignment", "RightForeArm", dict(rotation_vector=[0.1, -0.12, 0.0]))
     path = save_recording(misaligned.inject(clean), tmp_path / "walk.npz")
@@ -77,7 +78,8 @@ def test_diagnose_writes_what_track_reuses(tmp_path, cli):
         assert code == 0, err
         mnte[name] = json.loads((tmp_path / f"{name}.json").read_text())["mnte"]["median"]
     floor = 1 - math.cos(0.005 * math.sqrt(3))  # the noise's own MNTE: 1 - cos of a rotation of 0.005 rad per axis
-    assert mnte["calibrated"] < min(mnte["plain"] / 10, 2 * floor), mnte
+    # down to the noise's (the knee's 6 deg leave 10 times the floor; its own tenth would be below the noise)
+    assert mnte["calibrated"] < 2 * floor and mnte["calibrated"] < mnte["plain"] / 5, mnte
 
 
 def test_what_the_data_cannot_identify_is_said():

@@ -290,6 +290,8 @@ def read_bvh(path: str | Path, units: str = "auto", scale: float | None = None, 
     base = names.index(base_link)
     velocity = np.gradient(p[:, base], time, axis=0) if len(time) > 1 else np.zeros((len(time), 3))
     meta = dict(source=str(path), format="bvh", units=units if units != "auto" else None, metres_per_unit=scale,
+                clock="shared",  # one frame of every joint: motion capture, sampled together
+                angular_velocity="derived",  # the orientations' central difference: no gyro
                 up=up, frame_rate=1.0 / dt,
                 channels={j.name: j.channels for j in joints}, rest_pose=rest, missing_frames=missing,
                 # the bones: each joint's parent and OFFSET (m, torchik's axes), what builds a subject's model

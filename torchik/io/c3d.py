@@ -159,6 +159,8 @@ def read_c3d(path: str | Path, base_link: str = "PEL", units: str | None = None)
     velocity = np.gradient(base_position, time, axis=0) if T > 1 else np.zeros((T, 3))
     missing = {s: int((~ok).sum()) for s, ok in zip(segments, present) if (~ok).any()}
     meta = dict(source=str(path), format="c3d", frame_rate=rate, units=dict(position=unit, converted_to="m"),
+                clock="shared",  # one camera system samples every marker: no segment is late on another
+                angular_velocity="derived",  # the orientations' central difference: no gyro
                 first_frame=int(c3d["header"]["points"]["first_frame"]), triad_max_deviation=worst,
                 missing_frames=missing, skeleton=_plug_in_gait_skeleton(c3d["parameters"], xyz, valid, index, unit),
                 note="segment frames are Plug-in Gait's (anterior, lateral, proximal): calibrate them with a link map")

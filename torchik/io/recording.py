@@ -14,7 +14,12 @@ One `.npz` file (NumPy, no pickles):
 | `joint_names` | str [dof] | optional, with `joint_positions` |
 | `joint_positions` | float64 [T,dof] | optional ground truth (synthetic data) |
 | `position` | float64 [T,n,3] | optional: each segment's origin (its proximal joint), m, world; NaN where missing |
-| `meta` | str | JSON: source file, subject, units, frame rate, calibration frames, ... |
+| `meta` | str | JSON: source file, subject, units, frame rate, calibration frames, `clock`, ... |
+
+`meta["clock"]`: `"shared"` where one clock samples every segment (optical markers: the C3D and BVH
+readers write it), `"per_sensor"` where each sensor streams on its own; absent where unknown.
+`meta["angular_velocity"]`: `"derived"` where a reader computed it from the orientations (C3D, BVH);
+the diagnosis also tells a derivative from a gyro on the data themselves.
 
 `save_recording` writes it; `load_recording` (recording_file.py) reads it whole, `RecordingFile` a
 chunk of frames at a time.

@@ -36,7 +36,7 @@ from ...method.settings import TrackerSettings
 from ...method.state import State, TargetSequence, Trajectory
 from ...method.tracker import DynamicalIK
 from ..evaluation import link_motion
-from . import chunks
+from . import chunks, streams
 from .series import central_difference, central_rate, simpson
 
 DEFAULT_GAIN = TrackerSettings.orientation_gain  # the tracker's K (1/s), from its one source
@@ -48,8 +48,8 @@ LIMIT_TOLERANCE = 0.01  # rad: a joint this close to a finite limit is at it
 class Analysis:
     """Residuals of B tracked recordings (module docstring). Measured: R_m [T,B,L,3,3], w_m
     [T,B,L,3], p_m, v_m [T,B,3]; estimated: R_hat, w_hat, p_hat; residuals r, r_link, u, e, r_p,
-    e_p; valid [T,B,L] (both streams finite); derived [B,L] (the angular velocity is the central
-    difference of the orientations, not a gyro); velocity_derived [B] (the base velocity is the
+    e_p; valid [T,B,L] (both streams finite); derived [B,L] (the angular velocity is a derivative
+    of the orientations, not a gyro: streams.py); velocity_derived [B] (the base velocity is the
     central difference of its positions); s, active [T,B,n]; sample [S] time indices of J
     [S,B,R,6+n] and A [S,B,6+n,6+n]; rows [S,B,R] (the row's target is present); joint_axes
     [S,B,n,3] (world)."""
@@ -82,6 +82,7 @@ class Analysis:
     joint_axes: torch.Tensor
     trajectory: Trajectory = field(repr=False)
     poses: tuple[str | None, ...] = ()  # per subject: the reference pose a map calibrated it on (reference_pose)
+    clocks: tuple[bool, ...] = ()  # per subject: one clock samples every segment (streams.shared_clock)
     _projector: tuple | None = field(default=None, init=False, repr=False, compare=False)  # (b, {at_limits: M})
 
     @property
@@ -234,16 +235,15 @@ def analyse(model: KinematicModel, recordings: Sequence[Recording], links, traje
     near = valid & torch.cat((valid[:1], valid[:-1])) & torch.cat((valid[1:], valid[-1:]))
     valid = near & torch.isfinite(e).all(-1)
     e = torch.where(valid[..., None], e, 0.0)
-    # an angular velocity computed from the orientations (C3D, BVH) is no gyro: nothing to find in it
-    mismatch = torch.where(valid[..., None], w_safe - w_fd, 0.0).square().sum((0, -1))
-    derived = mismatch <= 1e-12 * torch.where(valid[..., None], w_safe, 0.0).square().sum((0, -1)) + 1e-18
+    # an angular velocity computed from the orientations (C3D, BVH, a converted file) is no gyro: nothing
+    # to find in it (streams.py tells it from the data, whatever the scheme that computed it)
+    derived = streams.derived_rates(torch.where(valid[..., None, None], R_m, torch.nan), w_m, time) | torch.tensor(
+        [[streams.declared_derived(r)] for r in recordings])
     p_m, v_m = seq.position[:, :, 0], seq.linear_velocity[:, :, 0]
     p_hat = trajectory.base_position
     dp = central_difference(p_m, time)
     e_p = simpson(v_m) - dp
-    both = torch.isfinite(e_p).all(-1, keepdim=True)
-    mismatch = torch.where(both, v_m - dp, 0.0).square().sum((0, -1))
-    velocity_derived = mismatch <= 1e-12 * torch.where(both, v_m, 0.0).square().sum((0, -1)) + 1e-18
+    velocity_derived = streams.derived_velocity(p_m, v_m, time)
     s = trajectory.joint_positions
     lower, upper = model.lower.to(s), model.upper.to(s)
     finite = (upper - lower) < NO_LIMIT
@@ -258,7 +258,8 @@ def analyse(model: KinematicModel, recordings: Sequence[Recording], links, traje
     A = inverse_normal(J)
     return Analysis(model, links, time, R_m, w_m, p_m, v_m, R_hat, w_hat, p_hat, r, r_link, w_m - w_hat, e,
                     p_m - p_hat, torch.nan_to_num(e_p), valid, derived, velocity_derived, s, active, sample, J, A, rows,
-                    axes, trajectory, tuple(reference_pose(r) for r in recordings))
+                    axes, trajectory, tuple(reference_pose(r) for r in recordings),
+                    tuple(streams.shared_clock(r) for r in recordings))
 
 
 def inverse_normal(J: torch.Tensor, damping: float = 1e-9) -> torch.Tensor:

@@ -49,8 +49,8 @@ def _weigh_turns(out: list[Effect]) -> None:
     alone, but the orientations do not follow it. (The bias' own score, a likelihood ratio over the
     whole time, and the drift's, held out, are not on one scale: comparing them kept 8 s of a 1.5
     deg/s drift on an upper arm as a bias.)"""
-    drifts = {c.target: c.score - c.params.get("own_gyro_score", 0.0) for c in out
-              if c.kind == "heading_drift" and c.fit is not None}
+    drifts = {c.target: c.score - (0.0 if c.params.get("gyro_shares") else c.params.get("own_gyro_score", 0.0))
+              for c in out if c.kind == "heading_drift" and c.fit is not None}  # a shared drift's is the orientations' alone
     for c in out:
         if c.kind == "gyro_bias" and "vertical_turn_score" in c.params and c.target in drifts:
             c.params["drift_score"] = drifts[c.target]

@@ -206,6 +206,8 @@ class Effect:
     error = "mnte"  # the overall error it must lower to be kept (Errors.overall's key)
 
     per_sample = False  # a value fitted at every sample (a joint angle): it explains noise on its test samples too
+    floor: ClassVar[float] = 0.0  # the size, in `unit`, below which the effect matters to no one (relevance)
+    unit: ClassVar[str] = ""
 
     @property
     def score(self) -> float:
@@ -235,6 +237,24 @@ class Effect:
     def angle_rms(self) -> float:
         """The rms (rad) of what a per-sample effect moves (per_sample effects define it)."""
         return math.inf
+
+    def size(self, dt: float) -> float:
+        """The effect's size in `unit` (the families define it; dt: the recording's sample period, s)."""
+        return math.inf
+
+    def relevance_floor(self, dt: float) -> float:
+        """The size below which the effect matters to no one, in `unit` (`floor`, unless it depends on dt)."""
+        return self.floor
+
+    def below_floor(self, dt: float) -> str:
+        """Why the effect, however significant, is too small to matter (\"\" when it is not): its size under
+        the family's floor (`relevance_floor`). Significance says the data show it; the floor says whether
+        anyone should care: a gyro scale error of 0.1 % can be significant over 12 s of a fast limb and
+        changes no joint angle a researcher reports. Such effects are listed as negligible, never added."""
+        size, floor = self.size(dt), self.relevance_floor(dt)
+        if not math.isfinite(size) or size >= floor:
+            return ""
+        return f"{size:.3g} {self.unit}, below the {floor:.3g} {self.unit} that matters"
 
     def directions(self, name: str) -> np.ndarray:
         """[size, k] the directions in which the data determine parameter `name` (its values flattened):
@@ -275,7 +295,7 @@ class Effect:
         self.stderr = update.stderr
         return self
 
-    def negligible(self) -> bool:
+    def within_error(self) -> bool:
         """Whether this fit, taken as a correction (a refine step's update), moves every parameter by no
         more than its standard error: the data cannot tell the refined effect from the one in place, so
         applying it and re-tracking (a second of a 12 s recording) would change nothing they show."""

@@ -64,9 +64,10 @@ def reach(effect: Effect, model: KinematicModel, links: Sequence[str]) -> set[st
 def neighbourhood(effect: Effect, model: KinematicModel, urdf: str, links: Sequence[str]) -> set[str]:
     """The links `effect` reaches (reach) and those one joint away from them: the tracker shares a
     target's inconsistency between the links the joints between them connect."""
-    near = reach(effect, model, links)
+    reached = reach(effect, model, links)
+    near = set(reached)
     for group in joints.joint_groups(urdf, links):
-        if group.child in near or group.parent in near:
+        if group.child in reached or group.parent in reached:  # one joint away from what it reaches, no further
             near |= {group.child, group.parent}
     return near
 

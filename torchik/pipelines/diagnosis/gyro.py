@@ -25,11 +25,21 @@ from ...io.recording import Recording
 from .analysis import Analysis
 from .effect import Effect, Score, lowpass_blocks, replace, score, shift
 from .integral import halves_stride, integrated, quieter_frame, subject_walk, vertical_turn, whitener
-from .placement import MAX_DELAY
+from .placement import DELAY_FLOOR, MAX_DELAY
 from .series import simpson
 
 MAX_SCALE = 0.1  # a gyro whose scale is off by more than this is broken, not miscalibrated
-MAX_BIAS = 10.0  # deg/s: an uncalibrated MEMS gyro's zero-rate offset stays within this; beyond, a unit or axis error
+# deg/s: a MEMS gyro's zero-rate offset before any calibration is within +-20 deg/s by its datasheet
+# (InvenSense MPU-6000/6050, "initial ZRO tolerance"; Bosch BMI160 +-10 deg/s); beyond, a unit or axis error
+MAX_BIAS = 25.0
+# Relevance floors (Effect.below_floor): what matters to a researcher reporting joint angles.
+# A bias of 0.2 deg/s turns an integrated heading by 2 deg over a 10 s trial (the misalignment's
+# floor, placement.py, is 1 deg) and is the order of a calibrated MEMS gyro's in-run bias; below it
+# a gyro's bias changes no joint angle anyone reports.
+BIAS_FLOOR = 0.2  # deg/s
+# A scale error of 0.5 % is within the tolerance a vendor calibrates a gyro's sensitivity to, and on a
+# limb turning at 5 rad/s it is 0.025 rad/s, a gyro's own noise.
+SCALE_FLOOR = 0.5  # %
 
 
 def _link(recording: Recording, name: str) -> int:
@@ -41,6 +51,10 @@ class GyroBias(Effect):
     """A constant angular-velocity bias params['bias'] [3] (rad/s, sensor frame) on a link's gyro."""
 
     additive, error, judged = ("bias",), "rmse", ("drift_score", "drift_kept")
+    floor, unit = BIAS_FLOOR, "deg/s"
+
+    def size(self, dt):
+        return float(np.degrees(np.linalg.norm(self.params["bias"])))
 
     def apply(self, recording, sign):
         i, b = _link(recording, self.target), np.asarray(self.params["bias"])
@@ -73,9 +87,19 @@ class GyroBias(Effect):
 
 @dataclass
 class GyroScale(Effect):
-    """A gyro scale error params['scale_error'] = kappa: the gyro reads (1 + kappa) w."""
+    """A gyro scale error params['scale_error'] = kappa: the gyro stream reads (1 + kappa) w, and the
+    orientations do not carry it: they come from elsewhere (markers, another fusion) or from a filter fed
+    with the calibrated gyro while the stream is the raw one converted with the datasheet's nominal
+    sensitivity (MEMS gyros are specified to +-3 %, InvenSense's MPU-6050 for one). A scale error the
+    orientations' own filter integrates turns them too, in phase with the limb's swing, as the filter's
+    leak of the limb's acceleration into its tilt does: the data do not tell the two apart (see
+    docs/diagnosis.md)."""
 
     error = "rmse"
+    floor, unit = SCALE_FLOOR, "%"
+
+    def size(self, dt):
+        return 100.0 * abs(self.params["scale_error"])
 
     def apply(self, recording, sign):
         i = _link(recording, self.target)
@@ -103,6 +127,13 @@ class StreamDelay(Effect):
     gyro of params['links'] by the same delay (a device's, not a sensor's)."""
 
     additive, error = ("delay",), "rmse"
+    unit = "ms"
+
+    def size(self, dt):
+        return 1e3 * abs(self.params["delay"])
+
+    def relevance_floor(self, dt):
+        return 1e3 * dt * DELAY_FLOOR
 
     def apply(self, recording, sign):
         w = recording.angular_velocity.copy()

@@ -35,10 +35,11 @@ from typing import NamedTuple, Sequence
 import numpy as np
 import torch
 
-from .analysis import Analysis
+from .analysis import Analysis, analyse
 from .effect import SIGNIFICANT, Effect, halves, score
+from .elimination import MODEL_FREE, related
 from .series import autocorrelation_time
-from .subject import Subject, analyse_subjects
+from .subject import Subject, analyse_subjects, trajectory_of
 
 CHANNELS = ("r", "u", "e", "r_p")  # the residuals the measurement effects act on (see Analysis)
 STEP = 0.5  # the finite-difference step, in standard errors of the loop's fit
@@ -168,7 +169,10 @@ def residual(analysis: Analysis, b: int, used: torch.Tensor, scale: torch.Tensor
 
 class Plan(NamedTuple):
     """A subject's stacked problem before its step: theta [P], the loop's errors sd [P], the names, the
-    directions basis [P, Q], the finite-difference steps h [Q] and the variants moved by them [Q]."""
+    directions basis [P, Q], the finite-difference steps h [Q] and the variants moved by them [Q],
+    and which of them move only MODEL_FREE effects (analysed on the subject's trajectory, not tracked:
+    what such an effect changes of the tracking is second order to what it changes of the channel it
+    is fitted on, as backward elimination takes it)."""
 
     subject: Subject
     theta: np.ndarray
@@ -177,17 +181,25 @@ class Plan(NamedTuple):
     basis: np.ndarray
     h: np.ndarray
     variants: list[Subject]
+    free: list[bool]  # per variant: it moves only effects fitted on a sensor's own streams (elimination.MODEL_FREE)
 
 
 def plan(s: Subject) -> Plan | None:
-    """Subject s's stacked problem (None when no measurement effect is kept), variants not tracked yet."""
+    """Subject s's stacked problem, variants not tracked yet; None when no two kept measurement effects
+    share a residual (elimination.related: the same links or one joint apart): each one's fit with the
+    others in place is then the joint fit's, to the step the linearisation would take, and tracking a
+    variant per parameter to find that out would cost seconds for nothing."""
     theta, sd, names, basis = _vector(s.effects)
-    if not names:
+    measured = [e for e in s.effects if fitted(e)]
+    links = s.current[0].links
+    if not any(related(a, b, s.model, s.urdf, links) for k, a in enumerate(measured) for b in measured[k + 1:]):
         return None
     h = STEP * step_scale(basis, sd)
     h = np.where(np.isfinite(h) & (h > 0), h, 1e-6 * max(float(np.abs(theta).max()), 1.0))
     variants = [_rebuild(s, _set(s.effects, theta + h[q] * basis[:, q])) for q in range(basis.shape[1])]
-    return Plan(s, theta, sd, names, basis, h, variants)
+    kinds = [e.kind for e in s.effects for n in fitted(e) for _ in range(np.asarray(e.params[n]).size)]  # per row
+    free = [all(kinds[p] in MODEL_FREE for p in np.flatnonzero(basis[:, q])) for q in range(basis.shape[1])]
+    return Plan(s, theta, sd, names, basis, h, variants, free)
 
 
 def step_scale(basis: np.ndarray, sd: np.ndarray) -> np.ndarray:
@@ -204,7 +216,12 @@ def refit(subjects: Sequence[Subject], links, gain: float, progress: bool, max_s
     all subjects track as one batch per model, and so do the subjects moved by their steps."""
     plans = [plan(s) for s in subjects]
     # only their residuals are read: the task Jacobian at a handful of samples, not max_samples (a fifth of the cost)
-    analyse_subjects([v for p in plans if p is not None for v in p.variants], links, gain, progress, VARIANT_SAMPLES)
+    analyse_subjects([v for p in plans if p is not None for v, free in zip(p.variants, p.free) if not free], links,
+                     gain, progress, VARIANT_SAMPLES)
+    for kept in (p for p in plans if p is not None):
+        for v in (v for v, free in zip(kept.variants, kept.free) if free):
+            v.analysis = (analyse(v.model, [v.recording], links, trajectory_of(*kept.subject.current), gain,
+                                  VARIANT_SAMPLES), 0)
     steps = [None if p is None else _step(p) for p in plans]
     # a step that its linearisation says explains too little is not worth re-tracking (a second of a 12 s recording)
     promising = [step for step in steps if step is not None and step[1].gain > SIGNIFICANT]
@@ -218,7 +235,7 @@ def refit(subjects: Sequence[Subject], links, gain: float, progress: bool, max_s
 def _step(p: Plan) -> tuple[Subject, Joint, torch.Tensor]:
     """The linearised stacked problem of p in the coordinates z of its directions (theta + basis z):
     the subject moved by the step, the step and covariance, and the test half's residual [n_test, D]."""
-    s, theta, sd, names, basis, h, variants = p
+    s, theta, sd, names, basis, h, variants, _ = p
     analysis, b = s.current
     train, test = halves(analysis.time)
     used = train | test

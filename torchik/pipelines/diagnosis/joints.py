@@ -34,8 +34,30 @@ REGULARISE = 0.05
 MAX_WIDENING = math.radians(30.0)  # rad: people's ranges differ by 10-20 deg; a limit further off is another error
 MAX_OFFSET = math.radians(30.0)  # rad: an added axis never this close to its zero, the reference pose's, sits off it
 MAX_RANGE = math.pi  # rad: no joint of a body moves over more than this about one axis
+# deg: the most a hinge's missing direction moves over (the angle's range), by the joint's name. The
+# knee's ab/adduction spans 5 to 10 deg in gait (Kadaba et al. 1990, the Plug-in Gait normals), the
+# elbow's carrying angle a few degrees as it flexes; beyond about 15 deg such an "axis" is what a frame
+# turned about its segment's long axis makes of flexion (the thigh frame of a knee: flexion seen as
+# ab/adduction, the cross-talk of gait labs), not a joint: a misalignment, tried as such.
+HINGE_RANGE = {"Knee": 15.0, "Elbow": 15.0}
+
+
+# A joint's angle in a walk or a run comes and goes with the strides; one that a straight line in time
+# explains (RAMP_SHARE of its variance) over several strides (RAMP_SPAN) is a sensor's heading turning
+# against its neighbour's, which a drift (placement.HeadingDrift) names with one parameter
+RAMP_SHARE = 0.8
+RAMP_SPAN = 5.0  # s
+
+
+def hinge_range(joint: str) -> float:
+    """deg: the most an axis a hinge lacks moves over at `joint` (a joint or chain name), inf elsewhere."""
+    return next((bound for name, bound in HINGE_RANGE.items() if name in joint), math.inf)
 ANGLE_BANDWIDTH = 4.0  # Hz: a joint's angle in walking and running; a missing axis' is fitted smoothed to it
 LEVERAGE = 1e-3  # a subtree the joints follow to within this share about every axis has no axis missing
+# Relevance floors (Effect.below_floor): joint angles are reported to about a degree; an axis moving by
+# less than that about its mean, or a limit off by less, changes nothing a gait report shows.
+AXIS_FLOOR = 1.0  # deg, the added axis' angle rms about its mean
+LIMIT_FLOOR = 1.0  # deg beyond the model's limit
 
 
 @dataclass(frozen=True)
@@ -121,6 +143,10 @@ class MissingDof(Effect):
     params['angle_range'] the range of the fitted angle and params['angle_rms'] its rms about its mean (rad)."""
 
     model_effect, per_sample = True, True
+    floor, unit = AXIS_FLOOR, "deg"
+
+    def size(self, dt):
+        return math.degrees(self.angle_rms())
 
     def angle_rms(self) -> float:
         return float(self.params.get("angle_rms", math.inf))
@@ -155,6 +181,16 @@ class MissingDof(Effect):
         if hi - lo > MAX_RANGE:
             return (f"an axis moving over {math.degrees(hi - lo):.0f} deg, beyond the {math.degrees(MAX_RANGE):.0f} deg "
                     f"of any joint of a body: a sign of a segment frame flipped or swapped, or of a mislabelled marker")
+        if self.params.get("ramp_share", 0.0) > RAMP_SHARE and self.params.get("ramp_span", 0.0) >= RAMP_SPAN:
+            return (f"an axis turning steadily one way, {math.degrees(self.params['ramp_rate']):+.2f} deg/s over "
+                    f"{self.params['ramp_span']:.0f} s (a straight line in time explains "
+                    f"{100 * self.params['ramp_share']:.0f} % of its angle): no joint of a body does; a sign of a heading "
+                    f"drift of the {self.params['child']} or {self.params['parent']} sensor")
+        hinge = hinge_range(self.target)
+        if math.degrees(hi - lo) > hinge:
+            return (f"an axis moving over {math.degrees(hi - lo):.0f} deg, beyond the {hinge:g} deg this hinge's missing "
+                    f"direction moves over: a sign of a misplaced frame, the {self.params['parent']} frame turned about "
+                    f"its long axis (which makes flexion show on this axis) or the {self.params['child']} frame turned")
         if min(abs(lo), abs(hi)) > MAX_OFFSET and lo * hi > 0:  # the calibration's static pose puts it at zero
             return (f"an axis held between {math.degrees(lo):.0f} and {math.degrees(hi):.0f} deg, never within "
                     f"{math.degrees(MAX_OFFSET):.0f} deg of the zero the static pose gives it: a sign of a static pose "
@@ -174,6 +210,10 @@ class JointLimit(Effect):
     the motion, which needs params['needed'] (rad)."""
 
     model_effect, per_sample = True, True
+    floor, unit = LIMIT_FLOOR, "deg"
+
+    def size(self, dt):
+        return math.degrees(self.angle_rms())
 
     def angle_rms(self) -> float:
         return abs(self.params["needed"] - self.params["limit"])
@@ -190,7 +230,7 @@ class JointLimit(Effect):
         self.stderr = update.stderr
         return self
 
-    def negligible(self):
+    def within_error(self):
         return False  # a refit gives the range needed, not a correction of it: always taken
 
     def implausible(self):
@@ -275,12 +315,22 @@ def _missing(analysis, b, train, test, urdf, target=None) -> list[Effect]:
         # the axis' uncertainty: explained variance along it against the next direction, in noise units
         gap = float(val[-1] - val[-2]) if len(val) > 1 else float(val[-1])
         sd = math.sqrt(fit.sigma2 * fit.tau / max(gap, 1e-30))
+        both = tr | te
         out.append(MissingDof("missing_dof", _stem(group), dict(
             axis=a.tolist(), parent=group.parent, child=group.child, first_joint=group.first_joint,
-            angle_range=[float(theta[tr | te].min()), float(theta[tr | te].max())],
-            angle_rms=float(theta[tr | te].std())),
+            angle_range=[float(theta[both].min()), float(theta[both].max())],
+            angle_rms=float(theta[both].std()), **_ramp(analysis.time[k][both], theta[both])),
             dict(axis_rad=sd), 2, fit))
     return out
+
+
+def _ramp(time: torch.Tensor, angle: torch.Tensor) -> dict:
+    """The straight line through an added axis' angle [n] at times [n]: its slope (rad/s), the share of the
+    angle's variance it explains, and the span of time it covers (s)."""
+    t = time - time.mean()
+    slope = float((t * (angle - angle.mean())).sum() / t.square().sum().clamp(min=1e-300))
+    share = slope ** 2 * float(t.square().sum()) / max(float((angle - angle.mean()).square().sum()), 1e-300)
+    return dict(ramp_rate=slope, ramp_share=min(share, 1.0), ramp_span=float(time[-1] - time[0]) if len(time) else 0.0)
 
 
 def _limits(analysis, b, train, test, target=None) -> list[Effect]:

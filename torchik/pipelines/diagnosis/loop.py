@@ -40,7 +40,7 @@ import torch
 from ...io.recording import Recording
 from ...method.kinematics import KinematicModel
 from ...method.metrics import orientation_error
-from . import elimination, frames, jointfit, joints, posture, refinement
+from . import elimination, frames, jointfit, joints, placement, posture, refinement
 from .analysis import DEFAULT_GAIN, Analysis, NoiseFloor, joint_summary, link_summary, noise_floor
 from .calibration import FORMAT
 from .candidates import KINDS
@@ -55,6 +55,7 @@ STOPS = {"noise": "consistent with noise: no candidate is significant, and the n
          "unexplained": "no candidate is both significant and plausible, but more remains than the noise accounts "
                         "for: a cause none of the candidates describes",
          "unidentifiable": "nothing identifiable: no candidate can be fitted on these data",
+         "negligible": "what the data still show significantly is below the size that matters (listed as negligible)",
          "cap": "cap reached: candidates were still significant after the last round allowed (--max-effects)"}
 
 
@@ -134,6 +135,8 @@ class Diagnosis:
     noise: NoiseFloor | None = None  # what a correct model would leave, estimated on the last analysis
     joint: jointfit.Joint | None = None  # the kept measurement effects fitted jointly at the end (jointfit.py)
     rounds: int = 0  # the rounds that added effects
+    negligible: list[Effect] = field(default_factory=list)  # significant, but below their family's floor: not added
+    unseen: dict = field(default_factory=dict)  # link: [m,3] directions (link frame) of a sensor turn the joints follow
 
     @property
     def why_stopped(self) -> str:
@@ -169,6 +172,25 @@ def _area(s: Subject, effect: Effect) -> tuple[set[str], set[str]]:
     return elimination.reach(effect, model, links), elimination.neighbourhood(effect, model, urdf, links)
 
 
+def _relevant(s: Subject, passing: list[Effect]) -> list[Effect]:
+    """The candidates of `passing` at or above their family's floor (Effect.below_floor); the others are
+    recorded in s.negligible (the latest fit of each kind and target), noted "significant but negligible",
+    and never added: they are real to the data and matter to no one, and adding them would cost a round
+    of tracking and, fitted on what the larger effects leave, risk echoes."""
+    dt = float(torch.diff(s.current[0].time).median())
+    out = []
+    for c in passing:
+        why = c.below_floor(dt)
+        if not why:
+            out.append(c)
+            continue
+        c.notes = "; ".join(filter(None, [c.notes, f"significant but negligible: {why}"]))
+        s.negligible[(c.kind, c.target)] = c
+    for c in out:  # relevant now: what an earlier round found negligible of it is no longer the word
+        s.negligible.pop((c.kind, c.target), None)
+    return out
+
+
 def _simplest_first(s: Subject, passing: list[Effect]) -> list[Effect]:
     """`passing` (best first) with the best replaced by the simplest of its rivals: candidates of its
     kind on related links (elimination.related: they explain the same residual) that score within TIE
@@ -191,6 +213,52 @@ def _simplest_first(s: Subject, passing: list[Effect]) -> list[Effect]:
     return [simplest] + [c for c in passing if c is not simplest]
 
 
+TIED = 0.99  # two candidates scoring within 1 % of each other explain the data equally: the data cannot choose
+
+
+def _biased_first(s: Subject, passing: list[Effect]) -> list[Effect]:
+    """`passing` with each drift its gyro shares put after a tied rival (a drift on a related link scoring
+    within TIED of it: a heading tied to a neighbour's by joints without a vertical axis turns one way
+    or the neighbour's the other, and the orientations cannot tell which) on a link whose own gyro shows
+    a bias among the candidates: a heading-free filter integrates its gyro's bias about the vertical
+    into the drift and leaves the rest in the gyro's stream (placement.HeadingDrift), so the biased
+    gyro is the drifting one."""
+    biased = {c.target for c in passing if c.kind == "gyro_bias"}
+    out = list(passing)
+    for c in passing:
+        if c.kind != "heading_drift" or c.target in biased:
+            continue
+        near = _area(s, c)[1]
+        rival = next((r for r in out if r.kind == c.kind and r.target in biased and r.score >= TIED * c.score
+                      and c.score >= TIED * r.score and _area(s, r)[0] & near), None)
+        if rival is not None and out.index(rival) > out.index(c):
+            out.remove(rival)
+            out.insert(out.index(c), rival)
+            rival.notes = "; ".join(filter(None, [rival.notes, f"preferred to {c.kind} at {c.target} (the same score): "
+                                                               f"this sensor's gyro shows a bias"]))
+    return out
+
+
+def _gyro_first(s: Subject, passing: list[Effect], threshold: float) -> list[Effect]:
+    """`passing` with each drift whose own gyro shows it (a heading turned under an unbiased gyro: its
+    integral's word, own_gyro_score, significant by itself) put before the model effects (a missing axis,
+    a moved limit) on the links around it: the orientations alone may fit an axis moving sample by sample
+    better than one rate, but only the drift explains what the gyro says of its own orientations, which
+    no joint of the model changes."""
+    out = list(passing)
+    for d in passing:
+        if d.kind != "heading_drift" or d.params.get("gyro_shares") or d.params.get("own_gyro_score", 0.0) <= threshold:
+            continue
+        near = _area(s, d)[1]
+        model = next((m for m in out[:out.index(d)] if m.model_effect and _area(s, m)[0] & near), None)
+        if model is not None:
+            out.remove(d)
+            out.insert(out.index(model), d)
+            d.notes = "; ".join(filter(None, [d.notes, f"preferred to {model.kind} at {model.target}: its own gyro "
+                                                       f"shows the turn (score {d.params['own_gyro_score']:.0f})"]))
+    return out
+
+
 def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> list[Effect]:
     """The significant candidates of subject s that explain disjoint residuals, refitted on all the
     data, best first (empty when none is): the best plausible one, then, in the order of their
@@ -200,7 +268,7 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
     others are in; those related to a chosen one wait for the next round, fitted with it in place.
     A deferred candidate (taken back from a round with others) comes alone, when it is the best."""
     taken = s.rejected + [st.effect for st in s.steps]
-    found = [c for c in s.candidates(kinds) if not any(c.overlaps(e) for e in taken)]
+    found = [c for c in s.candidates(kinds) if not any(c.overlaps(e) for e in taken) and (c.kind, c.target) not in s.shrunk]
     drifting = {st.effect.target for st in s.steps if st.effect.kind == "heading_drift"}
     for c in found:  # what a drift kept on the link left (its rate fitted short) is that drift's, not a bias
         if c.kind == "gyro_bias" and c.target in drifting and "vertical_turn_score" in c.params:
@@ -208,6 +276,7 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
     found = sorted(found + frames.candidates(s, kinds, taken, gain), key=lambda c: -c.score)  # half turns, swaps
     if first:
         s.unobservable = [c for c in found if c.fit is None]
+        s.unseen = {c.target: c.unseen().tolist() for c in found if isinstance(c, placement.Misalignment)}
     found = [c for c in found if c.fit is not None]
     noise = noise_floor(*s.current)
     passing = []
@@ -218,15 +287,20 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
             passing.append(c)
         elif c.score > threshold:
             c.notes = "; ".join(filter(None, [c.notes, f"not significant: {why}"]))
-    passing = _simplest_first(s, passing)
+    passing = _relevant(s, passing)
+    passing = _gyro_first(s, _biased_first(s, _simplest_first(s, passing)), threshold)
     chosen: list[tuple[Effect, Effect]] = []  # (the candidate, its refit)
     areas: list[tuple[set[str], set[str]]] = []
+    waiting: list[tuple[set[str], set[str]]] = []  # the areas of candidates that wait for the next round
     for c in passing:
         alone = (c.kind, c.target) in s.deferred
         if alone and chosen:
             continue
         area = _area(s, c)
-        if any(area[0] & near or reach & area[1] for reach, near in areas):
+        # a candidate related to one chosen waits, and so does any weaker one related to it: else a weaker
+        # neighbour would take the residual that the stronger, waiting one explains better
+        if any(area[0] & near or reach & area[1] for reach, near in areas + waiting):
+            waiting.append(area)
             continue
         final = s.refit(c) or c
         final.fit = c.fit  # the score is the held-out one, and so are the judgements made beside it
@@ -243,14 +317,17 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
             break
     if not chosen:
         s.done, s.best_rejected = True, found[0] if found else None
-        s.stop = "unidentifiable" if not found else "noise" if noise.share >= NOISE_SHARE else "unexplained"
+        s.stop = ("unidentifiable" if not found else "negligible" if s.negligible and not passing
+                  else "noise" if noise.share >= NOISE_SHARE else "unexplained")
         return []
-    best, final = chosen[0]
-    rivals = [c for c in passing[passing.index(best) + 1:] if c.score >= TIE * best.score and c.kind == best.kind]
-    if rivals:
-        final.notes = "; ".join(filter(None, [final.notes, "explained nearly as well by " + ", ".join(
-            f"{c.kind} at {c.target} (score {c.score:.0f} against {best.score:.0f})" for c in rivals)
-            + ": the data hardly tell them apart"]))
+    picked = {id(c) for c, _ in chosen}
+    for (best, final), area in zip(chosen, areas):  # what else explains the same residual about as well
+        rivals = [c for c in passing if id(c) not in picked and c.kind == best.kind and c.score >= TIE * best.score
+                  and _area(s, c)[0] & area[1]]
+        if rivals:
+            final.notes = "; ".join(filter(None, [final.notes, "explained nearly as well by " + ", ".join(
+                f"{c.kind} at {c.target} (score {c.score:.0f} against {best.score:.0f})" for c in rivals)
+                + ": the data hardly tell them apart"]))
     return [f for _, f in chosen]
 
 
@@ -278,12 +355,15 @@ def _variants(s: Subject, chosen: list[Effect]) -> list[elimination.Variant]:
     return list(out.values())
 
 
-def _refined_to_nothing(effect: Effect) -> str:
+def _refined_to_nothing(effect: Effect, dt: float) -> str:
     """Why a measurement effect, refined, is no effect any more ("" when it still is): every parameter
-    within its standard error of zero. Fitted first on a residual that another effect of the round or
-    the tracker's share of it explained, the Gauss-Newton steps took it back to nothing; kept, it would
-    be a finding of size zero. Model effects are not tested: their standard errors are of other values."""
-    if effect.model_effect or not effect.stderr or not effect.negligible():
+    within its standard error of zero, or its size below its family's floor. Fitted first on a residual
+    that another effect of the round or the tracker's share of it explained, the Gauss-Newton steps took
+    it back to nothing; kept, it would be a finding of size zero. Model effects are not tested on their
+    standard errors, which are of other values."""
+    if effect.below_floor(dt):
+        return f"refined, it is negligible: {effect.below_floor(dt)}"
+    if effect.model_effect or not effect.stderr or not effect.within_error():
         return ""
     return "refined, every parameter is within its standard error of zero: nothing is left for it to explain"
 
@@ -302,6 +382,7 @@ def _check(added: list[Added], links, gain: float, progress: bool, max_samples: 
     complete, rebuilt = set(), []
     for s, chosen, before, saved in added:
         after = errors(*s.current)
+        dt = float(torch.diff(s.current[0].time).median())
         areas = [elimination.neighbourhood(e, s.model, s.urdf, links) for e in chosen]
         kept = []
         for n, effect in enumerate(chosen):
@@ -309,7 +390,7 @@ def _check(added: list[Added], links, gain: float, progress: bool, max_samples: 
             old, new = (_error_apart(e, effect.error, others) for e in (before, after))
             rose = new > old * (1 + WORSE)
             why = (f"re-tracked with it, the {effect.error} went from {old:.4g} to {new:.4g}" if rose
-                   else effect.implausible() or _refined_to_nothing(effect))  # refined, it may have gone where it cannot be
+                   else effect.implausible() or _refined_to_nothing(effect, dt))  # refined, it may be where it cannot
             if not why:
                 kept.append(effect)
                 s.steps.append(Step(effect, before, after))
@@ -317,6 +398,12 @@ def _check(added: list[Added], links, gain: float, progress: bool, max_samples: 
             if rose and len(chosen) > 1 and (effect.kind, effect.target) not in s.deferred:
                 s.deferred.add((effect.kind, effect.target))  # the others' effect on the error may be what rose
                 say(f"round {round_ + 1}: {effect.kind} at {effect.target} taken back, to be tried alone ({why})")
+                continue
+            if not rose and effect.below_floor(dt):  # real, and too small to matter: listed as such
+                effect.notes = "; ".join(filter(None, [effect.notes, f"significant but negligible: {why}"]))
+                s.negligible[(effect.kind, effect.target)] = effect
+                s.shrunk.add((effect.kind, effect.target))
+                say(f"round {round_ + 1}: {effect.kind} at {effect.target} taken back as negligible ({why})")
                 continue
             effect.notes = "; ".join(filter(None, [effect.notes, f"reverted: {why}"]))
             s.rejected.append(effect)
@@ -334,8 +421,30 @@ def _check(added: list[Added], links, gain: float, progress: bool, max_samples: 
     return complete
 
 
+def _drop_negligible(subjects: list[Subject], links, gain: float, progress: bool, max_samples: int) -> None:
+    """Move the kept measurement effects that the joint fit put below their floor to the negligible ones:
+    fitted alone a neighbour's residual made them look larger (a clavicle's turn beside its trunk's), and
+    fitted with every other effect they are too small to matter. The subjects that lose one are rebuilt
+    from their source without it and tracked again."""
+    moved = []
+    for s in subjects:
+        dt = float(torch.diff(s.current[0].time).median())
+        small = [st for st in s.steps if not st.effect.model_effect and st.effect.below_floor(dt)]
+        for st in small:
+            e = st.effect
+            e.notes = "; ".join(filter(None, [e.notes, f"significant but negligible: fitted with the others, "
+                                                      f"{e.below_floor(dt)}"]))
+            s.negligible[(e.kind, e.target)] = e
+        if small:
+            assert s.source is not None, "set by the loop"
+            s.steps = [st for st in s.steps if st not in small]
+            s.recording, s.urdf = elimination.without(*s.source, s.effects, None)
+            moved.append(s)
+    analyse_subjects(moved, links, gain, progress, max_samples)
+
+
 def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], links, gain: float = DEFAULT_GAIN,
-             max_effects: int = 6, threshold: float = SIGNIFICANT, refine: int = 2, kinds: Sequence[str] = KINDS,
+             max_effects: int = 6, threshold: float = SIGNIFICANT, refine: int = 1, kinds: Sequence[str] = KINDS,
              progress: bool = False, log: Callable[[str], None] | None = None,
              max_samples: int = 300, eliminate: bool = True, joint: bool = True) -> list[Diagnosis]:
     """Run the loop on B recordings (the same length, links the model's) with `model` built from
@@ -381,11 +490,13 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
         elimination.eliminate([v for v in found if id(v[0]) in complete], links, gain, threshold, progress,
                               max_samples, say, lambda s, key: errors(*s.current).overall[key], WORSE)
     fits = jointfit.refit(subjects, links, gain, progress, max_samples) if joint else [None] * len(subjects)
+    _drop_negligible(subjects, links, gain, progress, max_samples)
     out = []
     for s, original, fit in zip(subjects, recordings, fits):
         analysis, b = s.current
         remaining = sorted((row for row in link_summary(analysis, b) if "rms_deg" in row), key=lambda r: -r["rms_deg"])
         out.append(Diagnosis(s.steps, s.recording, original, s.urdf, s.model, links, s.initial, s.current,
                              s.best_rejected, remaining, joint_summary(analysis, b), s.unobservable, s.rejected,
-                             s.done, s.stop, noise_floor(analysis, b), fit, s.rounds))
+                             s.done, s.stop, noise_floor(analysis, b), fit, s.rounds, list(s.negligible.values()),
+                             s.unseen))
     return out

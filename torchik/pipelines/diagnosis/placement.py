@@ -26,7 +26,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any, Collection
+from typing import Collection
 
 import numpy as np
 import torch
@@ -40,6 +40,15 @@ KINDS = ("misalignment", "sensor_delay", "heading_drift")  # the candidates fit(
 MAX_DELAY = 0.25  # s: a sensor later than this on the others is no delay but a different recording
 MAX_DRIFT = 5.0  # deg/s: heading drift of inertial sensors is a fraction of this
 MAX_MISALIGNMENT = 45.0  # deg: the most a strap or a marker cluster turns a sensor on its segment
+# Relevance floors (Effect.below_floor). A strap or a marker cluster is placed to within a degree or
+# two; a constant offset under 1 deg changes no joint angle beyond what a gait lab reports to.
+MISALIGNMENT_FLOOR = 1.0  # deg
+# One sample: a delay below it is the sampling's own (an integrate-and-dump or anti-alias filter delays a
+# gyro's rate by half a sample on its orientation) and nothing a recording's clocks can fix.
+DELAY_FLOOR = 1.0  # samples
+# 0.05 deg/s turns a heading by 3 deg a minute; over a shorter recording, a drift whose whole turn stays
+# under the misalignment's floor (1 deg) is below it too (HeadingDrift.relevance_floor).
+DRIFT_FLOOR = 0.05  # deg/s
 IDENTIFIABLE = 1e-2  # eigenvalues of G^T M G below this share of the largest: a direction not identified
 LEVERAGE = 1e-3  # a direction that leaves less of itself in the residual (G^T M G against G^T G): followed by the joints
 
@@ -65,6 +74,32 @@ def adjacent_joints(analysis: Analysis) -> torch.Tensor:
     own = above & ~(above[parent] & has[:, None])
     child = torch.nn.functional.one_hot(parent, len(count)).T.bool() & has[None, :]  # [L,L]: c's parent is l
     return own | (child.to(torch.float64) @ own.to(torch.float64) > 0)
+
+
+def project_carried(analysis: Analysis, b: int, links: list[int], rate: torch.Tensor,
+                    weight: torch.Tensor | None = None) -> torch.Tensor:
+    """The residual [N,S,R,1] that a turn at a unit rate about `rate` [3] (world) on links[n] leaves when
+    the link's velocity target carries it too (a drift its gyro shares, or any drift of a derived
+    angular velocity): the tracker then follows the turn where the joints can, and the residual is
+    not the projection of the turn, M(t) (t - t0) rate (that is when only the orientation target turns,
+    and the tracker corrects the part the joints follow), but the part of its rate the joints could not
+    follow at each time, accumulated, e(t) = integral of M(s) rate ds, kept in M(t)'s range:
+
+        d e / d t = M rate - K P e,   P = I - M   ->   e(t) = M(t) sum_{s <= t} M(s) rate ds
+
+    (the residual's part the joints follow decays at the tracker's gain K, fast against the walk). The
+    two are equal where M is constant; over a walk, whose trunk turns, they are not. weight [S,N]: the
+    turn's rate at each sample time, per candidate (default 1)."""
+    M = analysis.projector(b)  # [S,R,R]
+    time = analysis.time[analysis.sample]
+    columns = M[:, :, 3:].unflatten(-1, (-1, 3)) @ rate.to(M.dtype)  # [S,R,L]: M of each link's turn
+    columns = columns[..., links]
+    if weight is not None:
+        columns = columns * weight[:, None, :].to(columns.dtype)
+    step = torch.diff(time, prepend=time[:1])[:, None, None]
+    mean = 0.5 * (columns + torch.cat((columns[:1], columns[:-1])))  # trapezoid between sample times
+    carried = torch.cumsum(mean * step, dim=0)  # [S,R,N]
+    return (M @ carried).permute(2, 0, 1)[..., None]
 
 
 def project_held(analysis: Analysis, b: int, links: list[int], blocks: torch.Tensor) -> torch.Tensor:
@@ -161,6 +196,8 @@ def _held_or_free(free: LinearFit, held: LinearFit) -> LinearFit:
 
 
 UNOBSERVABLE = "not identifiable: the joints follow every direction of it, so it leaves no residual"
+ONE_CLOCK = ("not fitted: one clock samples every segment (optical markers; the file declares no separate streams, "
+             "meta['clock'])")
 
 
 def _unidentified(lf: LinearFit, k: int) -> str:
@@ -180,6 +217,11 @@ class Misalignment(Effect):
     """A constant sensor-to-segment rotation: R_m = R C, C = exp(params['rotation_vector']) (link
     frame); params['identified']: the unit directions (link frame) the data determine."""
 
+    floor, unit = MISALIGNMENT_FLOOR, "deg"
+
+    def size(self, dt):
+        return float(np.degrees(np.linalg.norm(self.params["rotation_vector"])))
+
     def apply(self, recording, sign):
         i = recording.links.index(self.target)
         C = self.rotation()
@@ -194,6 +236,15 @@ class Misalignment(Effect):
 
     def rotation(self) -> np.ndarray:
         return so3.exp(torch.tensor(self.params["rotation_vector"], dtype=torch.float64)).numpy()
+
+    def unseen(self) -> np.ndarray:
+        """[m,3] the unit directions (link frame) of a turn of this sensor that the data cannot see: the
+        joints follow them (all three where the fit identified none)."""
+        V = np.asarray(self.params.get("identified", []), dtype=np.float64).reshape(-1, 3)
+        if not len(V):
+            return np.eye(3)
+        U, S, _ = np.linalg.svd(np.eye(3) - V.T @ np.linalg.pinv(V.T), full_matrices=True)
+        return U[:, S > 0.5].T
 
     def implausible(self):
         c = np.asarray(self.params["rotation_vector"], dtype=np.float64)
@@ -224,6 +275,13 @@ class SensorDelay(Effect):
     """A sensor whose streams (orientation and gyro) are late on the others by params['delay'] s."""
 
     additive = ("delay",)
+    unit = "ms"
+
+    def size(self, dt):
+        return 1e3 * abs(self.params["delay"])
+
+    def relevance_floor(self, dt):
+        return 1e3 * dt * DELAY_FLOOR
 
     def apply(self, recording, sign):
         i, d = recording.links.index(self.target), -sign * self.params["delay"]
@@ -247,16 +305,52 @@ class SensorDelay(Effect):
 @dataclass
 class HeadingDrift(Effect):
     """A sensor's heading drifting about the world vertical at params['rate'] rad/s from the start
-    params['t0']: orientations and world-frame gyro both turned by Rz(rate (t - t0))."""
+    params['t0']: its orientations turned by Rz(rate (t - t0)), and its world-frame gyro with them.
+
+    What the sensor physics gives, in two kinds (params['gyro_shares']):
+
+    - the gyro does not share it (False): the heading reference moved, not the gyro. A filter that
+      corrects heading with a magnetometer follows a disturbed field: Xsens' MTi manual says that under
+      a magnetic disturbance lasting more than 10 to 30 s the heading "slowly converges to a new solution
+      using the 'new' local magnetic north", with no effect on inclination. The gyro, unbiased, is put
+      in the world frame by the drifting orientation: w_m = Rz w, and it disagrees with the rate of its
+      own orientations by e = -rate z.
+    - the gyro shares it (True): a bias about the vertical that the filter cannot see. Accelerometers
+      give a filter the gyro's bias about the two horizontal axes (gravity), and only a magnetometer in a
+      homogeneous field gives it the vertical one (the MTi manual, "Internal Sensor Bias Estimation");
+      without it (a VRU profile, an IMU-only fusion, OpenSense's input when the vendor's heading is
+      free) the heading integrates the bias, and the gyro stream, which carries it, turns with the
+      orientations: w_m = Rz w + rate z, e = 0. Only the orientations' drift against the other sensors
+      shows it, and the velocity the tracker cannot follow.
+
+    A bias about the sensor's vertical at rest (the part its filter could not see before the recording)
+    turns the heading at rate cos(tilt) as the sensor tilts away from it: params['tilt'] (True, the
+    shared kind) weighs the rate by z^T R_m(t) R_m(t0)^T z, the sensor's vertical at the start against its
+    vertical now (the_turn); on an upright trunk it is 1, on a swinging shank it varies with the swing.
+    Where the angular velocity is the orientations' derivative (no gyro), it shares whatever the
+    orientations do (True), at a constant rate."""
 
     additive = ("rate",)
+    floor, unit = DRIFT_FLOOR, "deg/s"
+
+    def size(self, dt):
+        return float(np.degrees(abs(self.params["rate"])))
+
+    def relevance_floor(self, dt):
+        span = self.params.get("t1", math.inf) - self.params.get("t0", 0.0)
+        return max(self.floor, MISALIGNMENT_FLOOR / span if span > 0 else math.inf)
 
     def apply(self, recording, sign):
         i = recording.links.index(self.target)
-        Rz = rotation_about([0.0, 0.0, 1.0], sign * self.params["rate"] * (recording.time - self.params["t0"]))
+        rate = self.params["rate"]
+        weight = tilt_weight(recording.orientation[:, i], recording.time, self.params["t0"]) \
+            if self.params.get("tilt") else np.ones(len(recording.time))
+        Rz = rotation_about([0.0, 0.0, 1.0], sign * rate * the_turn(weight, recording.time, self.params["t0"]))
         R, w = recording.orientation.copy(), recording.angular_velocity.copy()
         R[:, i] = Rz @ R[:, i]
         w[:, i] = (Rz @ w[:, i, :, None])[..., 0]
+        if self.params.get("gyro_shares", False):
+            w[:, i, 2] += sign * rate * weight
         return replace(recording, orientation=R, angular_velocity=w)
 
     def implausible(self):
@@ -282,7 +376,27 @@ class HeadingDrift(Effect):
                 f"show it (score {own:.1f})")
 
     def summary(self):
-        return f"heading of the {self.target} sensor drifting by {np.degrees(self.params['rate']):+.3f} deg/s"
+        how = (", its gyro drifting with it (a bias about the vertical the filter integrates)"
+               if self.params.get("gyro_shares") and not self.params.get("derived")
+               else ", its gyro not (the heading reference moved: a magnetic disturbance)"
+               if not self.params.get("gyro_shares") else "")
+        return f"heading of the {self.target} sensor drifting by {np.degrees(self.params['rate']):+.3f} deg/s{how}"
+
+
+def tilt_weight(R: np.ndarray, time: np.ndarray, t0: float) -> np.ndarray:
+    """[T] z^T R(t) R(t0)^T z: how much of a bias along a sensor's vertical at t0 (R [T,3,3], sensor to
+    world) lies along the vertical at t, the share of it a heading-free filter integrates into the
+    heading then (HeadingDrift). At the first valid sample at or after t0; NaN rotations weigh 0."""
+    ok = np.isfinite(R).all((-1, -2))
+    start = int(np.argmax(ok & (time >= t0))) if (ok & (time >= t0)).any() else 0
+    up = R[start, 2, :]  # the world's vertical in the sensor's axes then
+    return np.where(ok, np.nan_to_num(R[:, 2, :]) @ up, 0.0)
+
+
+def the_turn(weight: np.ndarray, time: np.ndarray, t0: float) -> np.ndarray:
+    """[T] the integral of weight [T] from t0 (trapezoid; 0 before t0): a drift's turn at unit rate."""
+    mean = 0.5 * (weight[1:] + weight[:-1]) * np.diff(time) * (time[1:] > t0)
+    return np.concatenate(([0.0], np.cumsum(mean)))
 
 
 def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, derived: torch.Tensor | None = None,
@@ -307,7 +421,9 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
     misalignments = [_held_or_free(*fits) for fits in zip(fit_linear(analysis, b, usable, R_hat, tr, te), fit_projected(
         analysis, b, project_held(analysis, b, usable, R_hat), R_hat.transpose(-1, -2) @ R_hat, tr, te))] \
         if "misalignment" in kinds else none
-    delays = fit_linear(analysis, b, usable, -w_hat[..., None], tr, te) if "sensor_delay" in kinds else none
+    one_clock = bool(analysis.clocks[b]) if analysis.clocks else False
+    delays = fit_linear(analysis, b, usable, -w_hat[..., None], tr, te) if "sensor_delay" in kinds and not one_clock \
+        else none
     drifts = _drift(analysis, b, usable, tr, te, derived, train, test) if "heading_drift" in kinds else none
     out: list[Effect] = []
     for i, mis, delay, head in zip(usable, misalignments, delays, drifts):  # per link: its kinds asked for
@@ -316,6 +432,8 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
             out.append(_misalignment(name, mis))
         if delay is not None:
             out.append(_sensor_delay(name, delay))
+        elif one_clock and "sensor_delay" in kinds:
+            out.append(SensorDelay("sensor_delay", name, notes=ONE_CLOCK))
         if head is not None:
             out.append(_heading_drift(analysis, b, i, head, bool(derived[i]), ok[:, i], t0))
     return out
@@ -336,47 +454,69 @@ def _sensor_delay(name: str, delay: LinearFit) -> Effect:
                        dict(delay=float(delay.cov[0, 0].clamp(min=0).sqrt())), 1, delay.fit)
 
 
-def _heading_drift(analysis: Analysis, b: int, i: int, head: LinearFit, derived: bool, ok: torch.Tensor,
-                   t0: float) -> Effect:
-    """Link i's drift from its fit; ok [T]: where its targets are valid."""
+def _heading_drift(analysis: Analysis, b: int, i: int, head: tuple[LinearFit | None, LinearFit], derived: bool,
+                   ok: torch.Tensor, t0: float) -> Effect:
+    """Link i's drift from its fits (with its gyro's e_z, None without a gyro; on the orientations alone);
+    ok [T]: where its targets are valid. The two kinds of HeadingDrift differ in what the gyro shows
+    (turned with an unbiased gyro, e = -rate z; shared, e = 0) and so in how the tracker follows them
+    (project_carried): each is fitted with its own rate, the first on the orientations and e_z with
+    what the integral of e says of it (integral.agreement: 2 log of the likelihood ratio of e = -rate z
+    against nothing in e), the second on the orientations alone (e predicts nothing), and the one of
+    the larger score is the candidate. Both have one parameter."""
     name, time = analysis.links[i], analysis.time
-    if not head.identified.shape[1]:
+    joint, alone = head
+    seen = bool(alone.identified.shape[1])  # the orientations show it (the joints do not follow it all)
+    if not seen and (joint is None or not joint.identified.shape[1]):
         return HeadingDrift("heading_drift", name, notes=UNOBSERVABLE)
-    params, fit_d = dict(rate=float(head.theta[0]), t0=t0, t1=float(time[-1])), head.fit
-    if not derived:
-        # (each gyro's own noise model, not the suit's shared walk a bias is judged with: with
-        # that, 15007's thigh drift lost its own gyro's word to the shank's, 66 of 70 named)
-        # a drifting heading turns the link's gyro with it (e = -rate z): what its integral says,
-        # for or against, joins the score. The low-passed e_z of the fit barely tells a drift of
-        # a link's own sensor from its neighbour's where a ball joint takes up the turn between
-        # them and only the other side's joint shows it
-        params["own_gyro_score"] = agreement(analysis.e[:, b, i], analysis.R_m[:, b, i], vertical_turn(time),
-                                             ok, time, head.theta[:1])
-        fit_d = dataclasses.replace(fit_d, score=fit_d.score + params["own_gyro_score"])
-    return HeadingDrift("heading_drift", name, params, dict(rate=float(head.cov[0, 0].clamp(min=0).sqrt())), 1, fit_d)
+    params: dict = dict(rate=float(alone.theta[0]), t0=t0, t1=float(time[-1]), gyro_shares=True, tilt=not derived)
+    fit_d, sd = alone.fit, float(alone.cov[0, 0].clamp(min=0).sqrt())
+    if derived or joint is None:
+        params["derived"] = True
+        return HeadingDrift("heading_drift", name, params, dict(rate=sd), 1, fit_d)
+    # (each gyro's own noise model, not the suit's shared walk a bias is judged with: with that, 15007's
+    # thigh drift lost its own gyro's word to the shank's, 66 of 70 named)
+    # the gyro does not share it: its e_z joins the fit and its integral's word the score. The low-passed
+    # e_z of the fit barely tells a drift of a link's own sensor from its neighbour's where a ball joint
+    # takes up the turn between them and only the other side's joint shows it
+    own = agreement(analysis.e[:, b, i], analysis.R_m[:, b, i], vertical_turn(time), ok, time, joint.theta[:1])
+    params["own_gyro_score"] = own
+    if not seen or joint.fit.score + own > alone.fit.score:  # the likelier of the two, each its rate's best
+        params.update(rate=float(joint.theta[0]), gyro_shares=False, tilt=False)
+        fit_d = dataclasses.replace(joint.fit, score=joint.fit.score + own)
+        sd = float(joint.cov[0, 0].clamp(min=0).sqrt())
+    return HeadingDrift("heading_drift", name, params, dict(rate=sd), 1, fit_d)
 
 
 def _drift(analysis: Analysis, b: int, usable: list[int], tr: torch.Tensor, te: torch.Tensor,
-           derived: torch.Tensor, train: torch.Tensor, test: torch.Tensor) -> list[LinearFit]:
-    """Heading-drift fits of the links `usable`: G = (t - t0) z on the orientation channel and, where
-    the link has a gyro, its disagreement with the orientations e_z = -rate, fitted together (e_z
-    low-passed within the blocks of train and test)."""
+           derived: torch.Tensor, train: torch.Tensor, test: torch.Tensor) -> list[tuple[LinearFit | None, LinearFit]]:
+    """Heading-drift fits of the links `usable`, per link (joint, alone): the drift its gyro shares, on
+    the orientation channel alone (project_carried: the tracker follows the velocity targets that
+    carry it, and the residual is what their rate leaves, integrated), and, where the link has a gyro,
+    the drift its gyro does not share, G = (t - t0) z, with its disagreement with the orientations
+    e_z = -rate fitted together (e_z low-passed within the blocks of train and test; None without a
+    gyro)."""
     k, time = analysis.sample, analysis.time
     z = torch.tensor([0.0, 0.0, 1.0], dtype=time.dtype)
     drift = ((time[k] - time[0])[:, None] * z)[..., None]  # [S,3,1]
     e_z = lowpass_blocks(analysis.e[:, b, :, 2], time, min(5.0, 0.25 / float(torch.diff(time).median())), train, test)
     gyro = [n for n, i in enumerate(usable) if not bool(derived[i])]
-    none = [n for n, i in enumerate(usable) if bool(derived[i])]
     extra = []
     for n in gyro:
         y_tr, y_te = e_z[tr[n], usable[n]], e_z[te[n], usable[n]]
         extra.append((torch.tensor([[float(tr[n].sum())]], dtype=time.dtype), -y_tr.sum()[None],
                       max(float(y_tr.var(unbiased=False)), 1e-12), y_te[:, None],  # noise about the constant fitted
                       lambda theta, m=len(y_te): -theta[0].expand(m)[:, None]))  # noqa: B008  (m bound per gyro)
-    fits: dict[int, Any] = {}
-    for group, channel in ((gyro, extra), (none, None)):
-        if group:
-            found = fit_linear(analysis, b, [usable[n] for n in group], drift.expand(len(group), -1, -1, -1),
-                               tr[group], te[group], channel)
-            fits.update(zip(group, found))
-    return [fits[n] for n in range(len(usable))]
+    R = analysis.R_m[:, b][:, usable].numpy()  # [T,N,3,3]
+    t = time.numpy()
+    weight = torch.from_numpy(np.stack([tilt_weight(R[:, n], t, t[0]) if not bool(derived[i]) else np.ones(len(t))
+                                        for n, i in enumerate(usable)], axis=-1))  # [T,N]
+    turn = torch.from_numpy(np.stack([the_turn(weight[:, n].numpy(), t, t[0]) for n in range(len(usable))], -1))
+    G = (turn[k].T[..., None] * z)[..., None]  # [N,S,3,1]
+    alone = fit_projected(analysis, b, project_carried(analysis, b, usable, z, weight[k]), G.transpose(-1, -2) @ G,
+                          tr, te)
+    joint: dict[int, LinearFit] = {}
+    if gyro:
+        found = fit_linear(analysis, b, [usable[n] for n in gyro], drift.expand(len(gyro), -1, -1, -1), tr[gyro],
+                           te[gyro], extra)
+        joint.update(zip(gyro, found))
+    return [(joint.get(n), alone[n]) for n in range(len(usable))]

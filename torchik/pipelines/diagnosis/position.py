@@ -23,6 +23,7 @@ from .effect import Effect, lowpass_blocks, replace, score
 from .series import simpson
 
 MAX_OFFSET = 0.3  # m: a point on the pelvis is within this of its origin
+OFFSET_FLOOR = 1.0  # cm: a marker's or a suit's pelvis origin is placed to within this; less changes no reported position
 
 
 @dataclass
@@ -31,6 +32,10 @@ class PositionOffset(Effect):
 
     additive = ("offset",)
     error = "base_velocity_rmse"
+    floor, unit = OFFSET_FLOOR, "cm"
+
+    def size(self, dt):
+        return 100.0 * float(np.linalg.norm(self.params["offset"]))
 
     def apply(self, recording, sign):
         R = recording.orientation[:, recording.links.index(recording.base_link)]

@@ -30,13 +30,14 @@ from ...method import so3
 from ...method.kinematics import KinematicModel
 from .analysis import Analysis
 from .effect import Effect, replace
-from .joints import JointLimit, joint_groups
+from .joints import JointLimit, hinge_range, joint_groups
 from .placement import UNOBSERVABLE, fit_projected
 
 MAX_ARM = 100.0  # deg: arms held in a T-pose for an N-pose turn by 90 (an A-pose, bent elbows, by less)
 MAX_POSTURE = 45.0  # deg: elsewhere (trunk, legs, head) a subject standing still is not further off
 ARM_JOINTS = ("Shoulder", "Elbow")  # names of the joints above the links MAX_ARM allows for
 HELD = math.radians(1.0)  # a reference pose this close to a limit holds the joint at it
+POSTURE_FLOOR = 1.0  # deg: as a strap's (placement.MISALIGNMENT_FLOOR), a posture off by less changes no reported angle
 
 
 def reference_rotations(model: KinematicModel, pose: str, links) -> torch.Tensor:
@@ -50,6 +51,11 @@ class StaticPose(Effect):
     """The links params['links'] (those below the joint above `target`) calibrated in a posture turned by
     P = exp(params['rotation_vector']) (world frame at the static frame, model axes) from the map's
     reference pose params['pose']; params['reference']: each link's orientation in that pose [L,3,3]."""
+
+    floor, unit = POSTURE_FLOOR, "deg"
+
+    def size(self, dt):
+        return self.angle()
 
     def offsets(self) -> np.ndarray:
         """[L,3,3] C_l = K_l^T P^T K_l: what the wrong posture leaves on each link's orientation (R_m = R C_l)."""
@@ -72,10 +78,27 @@ class StaticPose(Effect):
         """deg: the most a standing subject's posture below this joint can be off the reference pose."""
         return MAX_ARM if any(name in self.params["first_joint"] for name in ARM_JOINTS) else MAX_POSTURE
 
+    def off_hinge(self) -> float:
+        """deg: the part of the posture about no axis of the joint above (a knee's or an elbow's missing
+        ab/adduction), which a subject cannot hold: params['joint_axes'] [k,3], the joint's axes in the world
+        at the reference pose (none: every direction is the joint's)."""
+        axes = np.asarray(self.params.get("joint_axes", []), dtype=np.float64).reshape(-1, 3)
+        if not len(axes):
+            return 0.0
+        phi = np.asarray(self.params["rotation_vector"], dtype=np.float64)
+        basis = np.linalg.svd(axes.T, full_matrices=False)[0]
+        return float(np.degrees(np.linalg.norm(phi - basis @ (basis.T @ phi))))
+
     def implausible(self):
-        return (f"a static posture {self.angle():.0f} deg from the {self.params['pose']}, beyond the {self.bound():g} "
-                f"deg a standing subject's can be: a sign of a mislabelled marker or a flipped or swapped segment frame"
-                if self.angle() > self.bound() else "")
+        if self.angle() > self.bound():
+            return (f"a static posture {self.angle():.0f} deg from the {self.params['pose']}, beyond the {self.bound():g} "
+                    f"deg a standing subject's can be: a sign of a mislabelled marker or a flipped or swapped segment frame")
+        hinge = hinge_range(self.params["first_joint"]) / 2.0
+        if self.off_hinge() > hinge:
+            return (f"a static posture turned {self.off_hinge():.1f} deg about a direction the joint above "
+                    f"{self.target} does not move (more than {hinge:g} deg): no subject stands so, and a sensor frame "
+                    f"turned on {self.target} alone is what it is a sign of")
+        return ""
 
     def refine(self, update):
         P = so3.exp(torch.tensor(update.params["rotation_vector"], dtype=torch.float64)) @ so3.exp(
@@ -143,6 +166,8 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, urd
     for g, lf in zip(groups, fits):
         links = [name for name in analysis.links if name in g.subtree]
         params = dict(pose=pose, links=links, first_joint=g.first_joint, reference=K[[index[n] for n in links]].tolist())
+        if math.isfinite(hinge_range(g.first_joint)):  # a hinge: what it cannot hold (StaticPose.off_hinge)
+            params["joint_axes"] = (K[index[g.parent]] @ torch.tensor(g.axes, dtype=K.dtype).T).T.tolist()
         if not lf.identified.shape[1] or not math.isfinite(lf.fit.score):
             out.append(StaticPose("static_pose", g.child, params, notes=UNOBSERVABLE))
             continue

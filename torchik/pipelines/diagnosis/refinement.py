@@ -31,7 +31,7 @@ def refine(rounds: Sequence[tuple[Subject, list[Effect]]], links, gain: float, p
         neighbours = neighbours_kept(s, chosen, links)
         for effect in chosen + neighbours:
             update = None if isinstance(effect, joints.MissingDof) else s.refit(effect)
-            if update is None or update.negligible():
+            if update is None or update.within_error():
                 continue
             neighbour = any(effect is n for n in neighbours)
             if neighbour and _refined_beyond(effect, update):

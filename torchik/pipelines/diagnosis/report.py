@@ -118,6 +118,13 @@ def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]
     if echoes:
         lines += ["", "## Dropped as echoes (kept once, then explained by a later effect)", ""]
         lines += [f"- {e.summary()} (score {e.score:.0f} when added): {e.notes}" for e in echoes]
+    if d.negligible:
+        lines += ["", "## Significant but negligible (below the size that matters; not added)", "",
+                  "Each family has a floor below which an effect changes nothing a researcher reports (a misalignment "
+                  "of 1 deg, a gyro bias of 0.2 deg/s, a scale error of 0.5 %, a drift of 0.05 deg/s, a delay of one "
+                  "sample; the code says why each); these are real to the data and under it.", ""]
+        lines += [f"- {e.summary()} (score {e.score:.0f}): {e.notes.rsplit('significant but negligible: ', 1)[-1]}"
+                  for e in d.negligible]
     reverted = [e for e in d.rejected if "implausible:" not in e.notes and "echo of" not in e.notes]
     if reverted:
         lines += ["", "## Significant but not kept", ""]
@@ -143,6 +150,12 @@ def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]
         for e in d.unobservable:
             groups.setdefault((e.kind, e.notes), []).append(e.target)
         lines += [f"- {kind} at {', '.join(targets)}: {notes}" for (kind, notes), targets in groups.items()]
+    hidden = [(link, dirs) for link, dirs in d.unseen.items() if dirs]
+    if hidden:
+        lines += ["", "Turns of a sensor on its link that the data cannot see (the joints follow them: a sensor turned "
+                      "so leaves no residual, and no diagnosis can find it):", ""]
+        lines += [f"- {link}: about " + " and ".join(_json(v, 2) for v in dirs) + " in the link frame"
+                  + (" (every direction)" if len(dirs) == 3 else "") for link, dirs in hidden]
     lines += ["", "Where the residual sits (largest first):", "",
               "| link | rms (deg) | mean in link frame (deg) | dominant axis (link) | share | corr. with ω | corr. with α "
               "| corr. with a joint angle | band (Hz) | gyro vs orientation (rad/s) |",
@@ -164,7 +177,9 @@ def fit_source(d: Diagnosis) -> str:
     (jointfit.py; and whether its step was taken), or each effect's own fit with the others in place."""
     if d.joint is not None:
         return d.joint.note
-    return "each effect's own fit with the others in place (no joint fit: no measurement effect was kept)"
+    measured = [e for e in d.effects if not e.model_effect]
+    why = "no measurement effect was kept" if not measured else "no two kept measurement effects share a residual"
+    return f"each effect's own fit with the others in place (no joint fit: {why})"
 
 
 def answer(d: Diagnosis) -> list[str]:
@@ -180,6 +195,9 @@ def answer(d: Diagnosis) -> list[str]:
         lines += ["", f"Values and standard errors: {fit_source(d)}."]
     else:
         lines = ["**Found: nothing** the data tell from the noise."]
+    if d.negligible:
+        lines += ["", f"Also significant but below the size that matters, and not added: {len(d.negligible)} "
+                      f"(listed under \"Significant but negligible\")."]
     refused = [e for e in d.rejected if "implausible:" in e.notes]
     if refused:
         lines += ["", "**Refused as implausible** (not adopted; each points to another error):", ""]
@@ -239,6 +257,7 @@ def write(d: Diagnosis, out: str | Path, source: str, model_name: str, rrd: bool
                    before=d.before.to_json(), after=d.after.to_json(),
                    best_rejected=None if d.best_rejected is None else d.best_rejected.to_json(),
                    rejected=[e.to_json() for e in d.rejected], unobservable=[e.to_json() for e in d.unobservable],
+                   negligible=[e.to_json() for e in d.negligible], unseen=d.unseen,
                    joint_fit=None if d.joint is None else d.joint.to_json(), fit_source=fit_source(d),
                    remaining=d.remaining, limits=d.limits, complete=d.complete, stop=d.stop, why_stopped=d.why_stopped,
                    noise=None if d.noise is None else dict(axis_rms_rad=d.noise.axis_rms, power=d.noise.noise_power,

@@ -38,6 +38,9 @@ class Subject:
     deferred: set = field(default_factory=set)  # (kind, target) taken back from a round with others: tried alone
     tried: set = field(default_factory=set)  # (kind, candidate, flips and swaps kept then) re-tracked (frames.py)
     chunking: Chunking = field(default_factory=Chunking)  # shared with the variants made from it
+    negligible: dict = field(default_factory=dict)  # (kind, target): significant candidates below their floor
+    shrunk: set = field(default_factory=set)  # (kind, target) added, then refined below its floor: not tried again
+    unseen: dict = field(default_factory=dict)  # link: directions of a sensor turn the joints follow (first round)
 
     @property
     def effects(self) -> list[Effect]:
