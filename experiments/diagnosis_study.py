@@ -35,6 +35,8 @@ import numpy as np
 import torch
 from sensor_physics import FAMILIES, Injected, generate
 
+from torchik.pipelines.diagnosis.effect import replace
+
 STUDIED = tuple(f for f in FAMILIES if f not in ("clean", "optical_clean"))
 # on four sensors at once (vertical_bias draws at most one sensor of each of sensor_physics.UPRIGHT_GROUPS: three)
 SEVERAL = ("strap", "gyro_bias", "tilt_filter_bias", "magnetic_drift", "gyro_scale", "cluster_offset")
@@ -53,35 +55,41 @@ VISIBLE = 1.0  # deg, the misalignment's floor: less changes nothing anyone repo
 TRANSIENT = 2.0  # s
 
 
-def residual_angles(model, recording, links) -> np.ndarray:
-    """[T,L] the angle (deg) between each link's measured orientation and what torchik's tracker estimates."""
-    import torchik as tk
+def residual_angles(model, recordings, links) -> np.ndarray:
+    """[B,T,L] the angle (deg) between each link's measured orientation and what torchik's tracker
+    estimates, for recordings of one length tracked as one batch (the tracker as the diagnosis runs it:
+    from the first frame's posture, in chunks)."""
+    from torchik.pipelines.diagnosis.analysis import track
     from torchik.pipelines.evaluation import link_motion
 
-    trajectory, _ = tk.track(model, recording, links)
-    R_hat = link_motion(model, trajectory, links)[0][:, 0].numpy()
-    R_m = recording.orientation[:, [recording.links.index(n) for n in links]]
+    trajectory = track(model, recordings, links)
+    R_hat = link_motion(model, trajectory, links)[0].numpy()  # [T,B,L,3,3]
+    R_m = np.stack([r.orientation[:, [r.links.index(n) for n in links]] for r in recordings], axis=1)
     cos = (np.trace(np.swapaxes(R_m, -1, -2) @ R_hat, axis1=-2, axis2=-1) - 1) / 2
-    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).transpose(1, 0, 2)
 
 
 def visibility(case: dict, injected: list[Injected], recording, model, links, args) -> dict[str, float]:
     """Per target of an effect seen only in the orientations (IN_ORIENTATIONS, or tilt_filter_bias with
     compensated rates): how much the tracked residual changes without it (deg, the largest rms over the
-    links after TRANSIENT); the targets of other effects are left out (always identifiable)."""
-    out = {}
-    angles = None
-    for inj in injected:
-        if not (inj.family in IN_ORIENTATIONS or (inj.family == "tilt_filter_bias" and inj.extra.get("compensated"))):
-            continue
-        for target in inj.targets:
-            without = generate(case["seed"], case["family"], case.get("count"), links, args.duration, args.rate,
-                               remove=(target,))[0]
-            angles = residual_angles(model, recording, links) if angles is None else angles
-            change = residual_angles(model, without, links) - angles
-            keep = recording.time >= recording.time[0] + TRANSIENT
-            out[target] = float(np.sqrt(np.mean(change[keep] ** 2, axis=0)).max())
-    return out
+    links after TRANSIENT); the targets of other effects are left out (always identifiable). The
+    recording without a target's effect is this one with that sensor's streams from the recording
+    simulated without any (the same motion, noise and other sensors: the sensors are simulated apart)."""
+    targets = [t for inj in injected for t in inj.targets
+               if inj.family in IN_ORIENTATIONS or (inj.family == "tilt_filter_bias" and inj.extra.get("compensated"))]
+    if not targets:
+        return {}
+    clean = generate(case["seed"], case["family"], case.get("count"), links, args.duration, args.rate,
+                     remove=tuple(targets))[0]
+    variants = []
+    for target in targets:
+        i = recording.links.index(target)
+        R, w = recording.orientation.copy(), recording.angular_velocity.copy()
+        R[:, i], w[:, i] = clean.orientation[:, i], clean.angular_velocity[:, i]
+        variants.append(replace(recording, orientation=R, angular_velocity=w))
+    angles = residual_angles(model, [recording] + variants, links)
+    keep = recording.time >= recording.time[0] + TRANSIENT
+    return {t: float(np.sqrt(np.mean((a - angles[0])[keep] ** 2, axis=0)).max()) for t, a in zip(targets, angles[1:])}
 
 
 def judge(injected: list[Injected], effects, seen: dict[str, float]) -> dict:

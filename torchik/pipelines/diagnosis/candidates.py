@@ -17,17 +17,19 @@ KINDS = ("gyro_bias", "gyro_scale", "stream_delay", "misalignment", "sensor_dela
 
 
 def candidates(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, urdf: str,
-               kinds: Sequence[str] = KINDS, derived: torch.Tensor | None = None, target: str | None = None) -> list[Effect]:
+               kinds: Sequence[str] = KINDS, derived: torch.Tensor | None = None, target: str | None = None,
+               like: Effect | None = None) -> list[Effect]:
     """Every candidate effect of subject b, fitted on `train` and scored on `test`, best first; last,
     those the data cannot identify (no fit; their notes say why). derived [L]: links without a gyro of
     their own (default: analysis.derived); target: only the candidates on that link or joint (a refit;
-    each is fitted on its own data, so they are the same as among all)."""
+    each is fitted on its own data, so they are the same as among all); like: an effect whose form a
+    refit keeps (a heading drift's kind, shared with its gyro or not)."""
     wanted = set(kinds)
     out: list[Effect] = []
     if wanted & {"gyro_bias", "gyro_scale", "stream_delay"}:
         out += gyro.fit(analysis, b, train, test, derived, target=target)
     if wanted & set(placement.KINDS):
-        out += placement.fit(analysis, b, train, test, derived, target=target, kinds=wanted)
+        out += placement.fit(analysis, b, train, test, derived, target=target, kinds=wanted, like=like)
     if "static_pose" in wanted:
         out += posture.fit(analysis, b, train, test, urdf, target=target)
     if wanted & {"missing_dof", "joint_limit"}:

@@ -43,11 +43,12 @@ def depends(later: Effect, earlier: Effect) -> bool:
     return later.target == added or later.params.get("first_joint") == added
 
 
-def removable(kept: Sequence[Effect]) -> list[Effect]:
+def removable(kept: Sequence[Effect], last: bool = False) -> list[Effect]:
     """The kept effects (in the order added) that can be taken out alone: all but the last added (it
-    was just chosen with the others in place), those a later model effect depends on, and flipped
-    frames and swapped segments (frames.py: scored by re-tracking, with no fit for `rescore`)."""
-    return [e for k, e in enumerate(kept[:-1]) if e.kind not in frames.KINDS
+    was just chosen with the others in place; with `last`, it too), those a later model effect depends
+    on, and flipped frames and swapped segments (frames.py: scored by re-tracking, with no fit for
+    `rescore`)."""
+    return [e for k, e in enumerate(kept if last else kept[:-1]) if e.kind not in frames.KINDS
             and not any(depends(later, e) for later in kept[k + 1:])]
 
 
@@ -130,15 +131,15 @@ def rescore(analysis: Analysis, b: int, effect: Effect, urdf: str, derived: torc
 Variant = tuple[Subject, Effect, Subject]  # (the subject, the kept effect left out, the subject without it)
 
 
-def variants(s: Subject, kept: Sequence[Effect]) -> list[Variant]:
+def variants(s: Subject, kept: Sequence[Effect], every: bool = False) -> list[Variant]:
     """Subject s rebuilt from its source without each of the `kept` effects that can be taken out
-    alone (removable) and is related to the last one; those of measurement effects share s's model,
-    so that they track as one batch."""
+    alone (removable) and is related to the last one (with `every`: each one, the last included: the
+    loop's last check); those of measurement effects share s's model, so that they track as one batch."""
     assert s.source is not None, "set by the loop"
     links = s.current[0].links
     out = []
-    for effect in removable(kept):
-        if not related(effect, kept[-1], s.model, s.urdf, links):
+    for effect in removable(kept, every):
+        if not every and not related(effect, kept[-1], s.model, s.urdf, links):
             continue
         recording, urdf = without(*s.source, kept, effect)
         model = KinematicModel.from_urdf(urdf, name=s.model.name, dtype=s.model.dtype) if effect.model_effect \

@@ -319,7 +319,8 @@ def _missing(analysis, b, train, test, urdf, target=None) -> list[Effect]:
         out.append(MissingDof("missing_dof", _stem(group), dict(
             axis=a.tolist(), parent=group.parent, child=group.child, first_joint=group.first_joint,
             angle_range=[float(theta[both].min()), float(theta[both].max())],
-            angle_rms=float(theta[both].std()), **_ramp(analysis.time[k][both], theta[both])),
+            angle_rms=float(theta[both].std()), angle_mean=float(theta[both].mean()),
+            **_ramp(analysis.time[k][both], theta[both])),
             dict(axis_rad=sd), 2, fit))
     return out
 

@@ -31,6 +31,7 @@ once, those whose model has changed in a batch of their own.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -137,6 +138,7 @@ class Diagnosis:
     rounds: int = 0  # the rounds that added effects
     negligible: list[Effect] = field(default_factory=list)  # significant, but below their family's floor: not added
     unseen: dict = field(default_factory=dict)  # link: [m,3] directions (link frame) of a sensor turn the joints follow
+    confounded: dict = field(default_factory=dict)  # link: its sensor's turns told from a neighbour's only poorly
 
     @property
     def why_stopped(self) -> str:
@@ -259,6 +261,28 @@ def _gyro_first(s: Subject, passing: list[Effect], threshold: float) -> list[Eff
     return out
 
 
+def _offset_first(s: Subject, passing: list[Effect]) -> list[Effect]:
+    """`passing` with a misalignment of the links on either side of a missing axis put before the axis
+    where the axis' angle is mostly an offset (its mean beyond its rms about it): a constant angle is a
+    sensor's frame turned on its segment, which one to three parameters explain, and a joint's angle
+    comes and goes; fitted first, an axis takes the offset with the motion, and the frame's turn is
+    never named (a shank's frame turned about the knee's missing axis came back as that axis)."""
+    out = list(passing)
+    for m in passing:
+        if not isinstance(m, joints.MissingDof) or abs(m.params.get("angle_mean", 0.0)) <= m.params.get("angle_rms", 0.0):
+            continue
+        frame = next((c for c in out[out.index(m):] if c.kind == "misalignment"
+                      and c.target in (m.params["child"], m.params["parent"])), None)
+        if frame is not None:
+            out.remove(frame)
+            out.insert(out.index(m), frame)
+            why = (f"preferred to the missing axis at {m.target}, whose angle is mostly an offset "
+                   f"({math.degrees(m.params['angle_mean']):.1f} deg, about which it moves by "
+                   f"{math.degrees(m.angle_rms()):.1f})")
+            frame.notes = "; ".join(filter(None, [frame.notes, why]))
+    return out
+
+
 def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> list[Effect]:
     """The significant candidates of subject s that explain disjoint residuals, refitted on all the
     data, best first (empty when none is): the best plausible one, then, in the order of their
@@ -277,6 +301,7 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
     if first:
         s.unobservable = [c for c in found if c.fit is None]
         s.unseen = {c.target: c.unseen().tolist() for c in found if isinstance(c, placement.Misalignment)}
+        s.confounded = _confounded(s)
     found = [c for c in found if c.fit is not None]
     noise = noise_floor(*s.current)
     passing = []
@@ -288,7 +313,7 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
         elif c.score > threshold:
             c.notes = "; ".join(filter(None, [c.notes, f"not significant: {why}"]))
     passing = _relevant(s, passing)
-    passing = _gyro_first(s, _biased_first(s, _simplest_first(s, passing)), threshold)
+    passing = _offset_first(s, _gyro_first(s, _biased_first(s, _simplest_first(s, passing)), threshold))
     chosen: list[tuple[Effect, Effect]] = []  # (the candidate, its refit)
     areas: list[tuple[set[str], set[str]]] = []
     waiting: list[tuple[set[str], set[str]]] = []  # the areas of candidates that wait for the next round
@@ -443,6 +468,45 @@ def _drop_negligible(subjects: list[Subject], links, gain: float, progress: bool
     analyse_subjects(moved, links, gain, progress, max_samples)
 
 
+def _neighbours(s: Subject, link: str) -> list[str]:
+    """The tracked links one joint from `link` (its nearest tracked ancestor and the links whose it is)."""
+    groups = joints.joint_groups(s.urdf, s.current[0].links)
+    return sorted({g.parent for g in groups if g.child == link} | {g.child for g in groups if g.parent == link})
+
+
+def _confounded(s: Subject) -> dict[str, list[dict]]:
+    """Per tracked link, the turns of its sensor the data tell from a neighbour's only poorly
+    (placement.confounds), on the first analysis: what no diagnosis of these data can attribute."""
+    analysis, b = s.current
+    links = analysis.links
+    out = {}
+    for name in links:
+        found = placement.confounds(analysis, b, links.index(name), [links.index(n) for n in _neighbours(s, name)])
+        if found:
+            out[name] = [dict(c, neighbour=links[c["neighbour"]]) for c in found]
+    return out
+
+
+def _note_confounds(s: Subject) -> None:
+    """Each kept misalignment's turns that the data tell from a neighbour's only poorly
+    (placement.confounds): params['confounds'] and a note, so that the report says the data see the
+    two sensors' difference there and not which one turned."""
+    analysis, b = s.current
+    links = analysis.links
+    for e in s.effects:
+        if not isinstance(e, placement.Misalignment):
+            continue
+        found = placement.confounds(analysis, b, links.index(e.target), [links.index(n) for n in _neighbours(s, e.target)])
+        if not found:
+            continue
+        e.params["confounds"] = [dict(c, neighbour=links[c["neighbour"]]) for c in found]
+        told = "; ".join(f"a turn of it about ({', '.join(f'{x:+.2f}' for x in c['direction'])}) from one of the "
+                         f"{links[c['neighbour']]} sensor about ({', '.join(f'{x:+.2f}' for x in c['neighbour_direction'])})"
+                         for c in found)
+        e.notes = "; ".join(filter(None, [e.notes, f"the data tell {told} only poorly (they see the two sensors' "
+                                                   f"difference there, not which one turned)"]))
+
+
 def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], links, gain: float = DEFAULT_GAIN,
              max_effects: int = 6, threshold: float = SIGNIFICANT, refine: int = 1, kinds: Sequence[str] = KINDS,
              progress: bool = False, log: Callable[[str], None] | None = None,
@@ -489,8 +553,15 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
         complete = _check(added, links, gain, progress, max_samples, round_, say, refined)
         elimination.eliminate([v for v in found if id(v[0]) in complete], links, gain, threshold, progress,
                               max_samples, say, lambda s, key: errors(*s.current).overall[key], WORSE)
+    if eliminate:  # the last check: each kept effect with every other in place, the last added too
+        found = [v for s in subjects if len(s.effects) > 1 for v in elimination.variants(s, s.effects, every=True)]
+        elimination.track([], found, links, gain, progress, max_samples)
+        elimination.eliminate(found, links, gain, threshold, progress, max_samples, say,
+                              lambda s, key: errors(*s.current).overall[key], WORSE)
     fits = jointfit.refit(subjects, links, gain, progress, max_samples) if joint else [None] * len(subjects)
     _drop_negligible(subjects, links, gain, progress, max_samples)
+    for s in subjects:
+        _note_confounds(s)
     out = []
     for s, original, fit in zip(subjects, recordings, fits):
         analysis, b = s.current
@@ -498,5 +569,5 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
         out.append(Diagnosis(s.steps, s.recording, original, s.urdf, s.model, links, s.initial, s.current,
                              s.best_rejected, remaining, joint_summary(analysis, b), s.unobservable, s.rejected,
                              s.done, s.stop, noise_floor(analysis, b), fit, s.rounds, list(s.negligible.values()),
-                             s.unseen))
+                             s.unseen, s.confounded))
     return out

@@ -328,7 +328,11 @@ class HeadingDrift(Effect):
     shared kind) weighs the rate by z^T R_m(t) R_m(t0)^T z, the sensor's vertical at the start against its
     vertical now (the_turn); on an upright trunk it is 1, on a swinging shank it varies with the swing.
     Where the angular velocity is the orientations' derivative (no gyro), it shares whatever the
-    orientations do (True), at a constant rate."""
+    orientations do (True), at a constant rate: so do the quaternion tables OpenSense reads, whose IMU
+    inverse kinematics fits the model to the vendor filter's orientations frame by frame (a weighted least
+    squares of their errors, OpenSim's "How IMU Inverse Kinematics Works") with no gyro and no model of
+    drift: its IMU Placer aligns the base sensor's heading once, on the calibration frame, and a sensor's
+    heading drifting after it goes into the joint angles."""
 
     additive = ("rate",)
     floor, unit = DRIFT_FLOOR, "deg/s"
@@ -400,7 +404,7 @@ def the_turn(weight: np.ndarray, time: np.ndarray, t0: float) -> np.ndarray:
 
 
 def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, derived: torch.Tensor | None = None,
-        target: str | None = None, kinds: Collection[str] = KINDS) -> list[Effect]:
+        target: str | None = None, kinds: Collection[str] = KINDS, like: Effect | None = None) -> list[Effect]:
     """Misalignment, sensor-delay and heading-drift candidates (those of `kinds`) for every link of
     subject b; those the data cannot identify without a fit (their notes say why). derived [L]:
     links whose angular velocity is computed from the orientations (default: analysis.derived),
@@ -435,7 +439,41 @@ def fit(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tensor, der
         elif one_clock and "sensor_delay" in kinds:
             out.append(SensorDelay("sensor_delay", name, notes=ONE_CLOCK))
         if head is not None:
-            out.append(_heading_drift(analysis, b, i, head, bool(derived[i]), ok[:, i], t0))
+            shares = like.params.get("gyro_shares") if like is not None and like.kind == "heading_drift" else None
+            out.append(_heading_drift(analysis, b, i, head, bool(derived[i]), ok[:, i], t0, shares))
+    return out
+
+
+def confounds(analysis: Analysis, b: int, link: int, others: list[int]) -> list[dict]:
+    """The turns of link `link`'s sensor that the data tell from a turn of a neighbour's (`others`, links
+    one joint away) only poorly: for each neighbour, the misalignments of both fitted together (G = R_hat
+    on each one's rows, projected by M, over every sample time), and each direction of the pair's normal
+    matrix that carries less than IDENTIFIABLE of its largest eigenvalue while each sensor alone is
+    identified along its part: there the two sensors' turns leave nearly the same residual (about a
+    hinge's missing axis, a thigh's and a shank's frames turned the same way, since the knee cannot turn
+    the shank against the thigh about it: the data see their difference). Returns dicts of neighbour
+    (its index), direction and neighbour_direction (unit, each sensor's frame) and share (the pair
+    direction's eigenvalue against the largest)."""
+    k = analysis.sample
+    out = []
+    for n in others:
+        R_hat = analysis.R_hat[k, b][:, [link, n]].transpose(0, 1)  # [2,S,3,3]
+        MG = project_blocks(analysis, b, [link, n], R_hat)  # [2,S,R,3]
+        X = torch.cat((MG[0], MG[1]), dim=-1)  # [S,R,6]
+        N = torch.einsum("srk,srl->kl", X, X)
+        alone = [torch.linalg.eigvalsh(N[s_, s_]) for s_ in (slice(0, 3), slice(3, 6))]
+        eigval, eigvec = torch.linalg.eigh(N)
+        top = float(eigval[-1])
+        for value, v in zip(eigval.tolist(), eigvec.T):
+            a, c = v[:3], v[3:]
+            if not (0.0 < value < IDENTIFIABLE * top) or min(float(a.norm()), float(c.norm())) < 0.3:
+                continue
+            # each part alone is seen (the sensor alone identified along it): the pair is what hides it
+            seen = all(float(p @ (N[s_, s_] @ p)) / float(p @ p) > IDENTIFIABLE * float(e[-1])
+                       for p, s_, e in ((a, slice(0, 3), alone[0]), (c, slice(3, 6), alone[1])))
+            if seen:
+                out.append(dict(neighbour=n, direction=(a / a.norm()).tolist(), neighbour_direction=(c / c.norm()).tolist(),
+                                share=value / top))
     return out
 
 
@@ -455,14 +493,15 @@ def _sensor_delay(name: str, delay: LinearFit) -> Effect:
 
 
 def _heading_drift(analysis: Analysis, b: int, i: int, head: tuple[LinearFit | None, LinearFit], derived: bool,
-                   ok: torch.Tensor, t0: float) -> Effect:
+                   ok: torch.Tensor, t0: float, shares: bool | None = None) -> Effect:
     """Link i's drift from its fits (with its gyro's e_z, None without a gyro; on the orientations alone);
     ok [T]: where its targets are valid. The two kinds of HeadingDrift differ in what the gyro shows
     (turned with an unbiased gyro, e = -rate z; shared, e = 0) and so in how the tracker follows them
     (project_carried): each is fitted with its own rate, the first on the orientations and e_z with
     what the integral of e says of it (integral.agreement: 2 log of the likelihood ratio of e = -rate z
     against nothing in e), the second on the orientations alone (e predicts nothing), and the one of
-    the larger score is the candidate. Both have one parameter."""
+    the larger score is the candidate (or the kind `shares` says: a refit keeps the kind the held-out
+    score chose). Both have one parameter."""
     name, time = analysis.links[i], analysis.time
     joint, alone = head
     seen = bool(alone.identified.shape[1])  # the orientations show it (the joints do not follow it all)
@@ -480,7 +519,8 @@ def _heading_drift(analysis: Analysis, b: int, i: int, head: tuple[LinearFit | N
     # takes up the turn between them and only the other side's joint shows it
     own = agreement(analysis.e[:, b, i], analysis.R_m[:, b, i], vertical_turn(time), ok, time, joint.theta[:1])
     params["own_gyro_score"] = own
-    if not seen or joint.fit.score + own > alone.fit.score:  # the likelier of the two, each its rate's best
+    unaware = not seen or joint.fit.score + own > alone.fit.score  # the likelier of the two, each its rate's best
+    if (not shares if shares is not None and seen else unaware):
         params.update(rate=float(joint.theta[0]), gyro_shares=False, tilt=False)
         fit_d = dataclasses.replace(joint.fit, score=joint.fit.score + own)
         sd = float(joint.cov[0, 0].clamp(min=0).sqrt())

@@ -156,6 +156,14 @@ def markdown(d: Diagnosis, source: str, model_name: str, figures: dict[str, str]
                       "so leaves no residual, and no diagnosis can find it):", ""]
         lines += [f"- {link}: about " + " and ".join(_json(v, 2) for v in dirs) + " in the link frame"
                   + (" (every direction)" if len(dirs) == 3 else "") for link, dirs in hidden]
+    pairs = sorted({tuple(sorted((link, c["neighbour"]))) for link, found in d.confounded.items() for c in found})
+    if pairs:
+        lines += ["", "Turns of two neighbouring sensors that the data tell apart only poorly (they leave nearly the "
+                      "same residual: the data see the two sensors' difference, not which one turned; a finding on "
+                      "one may be the other's):", ""]
+        for a, b in pairs:
+            c = next(c for c in d.confounded.get(a, []) if c["neighbour"] == b)
+            lines.append(f"- {a} about {_json(c['direction'], 2)} and {b} about {_json(c['neighbour_direction'], 2)}")
     lines += ["", "Where the residual sits (largest first):", "",
               "| link | rms (deg) | mean in link frame (deg) | dominant axis (link) | share | corr. with ω | corr. with α "
               "| corr. with a joint angle | band (Hz) | gyro vs orientation (rad/s) |",
@@ -192,6 +200,10 @@ def answer(d: Diagnosis) -> list[str]:
             share = "" if e.fit is None else f", explaining {100 * e.fit.explained:.0f} % of its channel's held-out residual"
             lines.append(f"- {e.summary()}: held-out score {e.score:.0f}{share}; MNTE "
                          f"{_fmt(step.before.overall['mnte'])} → {_fmt(step.after.overall['mnte'])}.")
+            for c in e.params.get("confounds", []):  # what the data cannot attribute: said where the finding is
+                lines.append(f"  - the data tell its turn about {_json(c['direction'], 2)} from the {c['neighbour']} "
+                             f"sensor's about {_json(c['neighbour_direction'], 2)} only poorly: they see the two "
+                             f"sensors' difference, not which one turned")
         lines += ["", f"Values and standard errors: {fit_source(d)}."]
     else:
         lines = ["**Found: nothing** the data tell from the noise."]
@@ -257,7 +269,7 @@ def write(d: Diagnosis, out: str | Path, source: str, model_name: str, rrd: bool
                    before=d.before.to_json(), after=d.after.to_json(),
                    best_rejected=None if d.best_rejected is None else d.best_rejected.to_json(),
                    rejected=[e.to_json() for e in d.rejected], unobservable=[e.to_json() for e in d.unobservable],
-                   negligible=[e.to_json() for e in d.negligible], unseen=d.unseen,
+                   negligible=[e.to_json() for e in d.negligible], unseen=d.unseen, confounded=d.confounded,
                    joint_fit=None if d.joint is None else d.joint.to_json(), fit_source=fit_source(d),
                    remaining=d.remaining, limits=d.limits, complete=d.complete, stop=d.stop, why_stopped=d.why_stopped,
                    noise=None if d.noise is None else dict(axis_rms_rad=d.noise.axis_rms, power=d.noise.noise_power,

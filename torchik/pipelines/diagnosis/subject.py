@@ -41,6 +41,7 @@ class Subject:
     negligible: dict = field(default_factory=dict)  # (kind, target): significant candidates below their floor
     shrunk: set = field(default_factory=set)  # (kind, target) added, then refined below its floor: not tried again
     unseen: dict = field(default_factory=dict)  # link: directions of a sensor turn the joints follow (first round)
+    confounded: dict = field(default_factory=dict)  # link: its turns told from a neighbour's only poorly (first round)
 
     @property
     def effects(self) -> list[Effect]:
@@ -58,18 +59,18 @@ class Subject:
         assert self.first is not None, "analysed in the loop's first round"
         return self.first
 
-    def candidates(self, kinds, train=None, test=None, target=None) -> list[Effect]:
+    def candidates(self, kinds, train=None, test=None, target=None, like=None) -> list[Effect]:
         """Candidates on the current analysis (train and test: halves() unless given; target: only
         those on that link or joint)."""
         analysis, b = self.current
         if train is None:
             train, test = halves(analysis.time)
-        return candidates(analysis, b, train, test, self.urdf, kinds, self.derived, target)
+        return candidates(analysis, b, train, test, self.urdf, kinds, self.derived, target, like)
 
     def refit(self, effect: Effect) -> Effect | None:
         """The effect's kind and target fitted again on all the current data (after the transient)."""
         train, test = halves(self.current[0].time, guard=0.0)
-        found = [c for c in self.candidates((effect.kind,), train | test, train | test, effect.target)
+        found = [c for c in self.candidates((effect.kind,), train | test, train | test, effect.target, effect)
                  if c.fit is not None]
         return found[0] if found else None
 
