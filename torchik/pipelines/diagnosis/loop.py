@@ -4,25 +4,31 @@ residuals, repeat.
     for each round:
         analyse the residuals of the current recording and model
         fit every candidate on the train half of the time, score it on the test half (effect.py)
-        the best significant one (Effect.significant: its held-out score above SIGNIFICANT, also once
+        keep those significant (Effect.significant: the held-out score above SIGNIFICANT, also once
         calibrated on how its gains scatter across stretches of the test time (Score.calibrated), or
         for an angle fitted sample by sample, a size above the noise that analysis.noise_floor
-        estimates) whose values are plausible (Effect.implausible), and with it every other such
-        candidate whose links are not related to those of one chosen before it (not the same links
-        nor one joint away: disjoint residuals, none the echo of another): refit each on all the
-        data, add them (correct the recording, or augment the URDF), re-track, and
+        estimates) and relevant (Effect.below_floor: the others are listed as negligible), in the
+        order of their scores but for what the physics prefers (_simplest_first, _biased_first,
+        _gyro_first, _offset_first); the first plausible one (Effect.implausible), and with it every
+        other such candidate whose links are not related to those of one chosen or waiting before it
+        (not the same links nor one joint away: disjoint residuals, none the echo of another): refit
+        each on all the data, add them (correct the recording, or augment the URDF), re-track, and
         refine their parameters `refine` times (the fits are linearised and the tracker absorbs
         part of an effect: Gauss-Newton steps), with the earlier effects of their kind on related
         links (refinement.py)
         keep each if the error it acts on (over the links the others do not move) did not rise and
-        it is still plausible; else take it back;
+        it is still plausible and relevant; else take it back;
         then re-score every effect kept before it with the others in place and drop those that no
         longer pay for their parameters, as echoes of it (elimination.py)
     until no candidate is significant, or `max_effects` rounds are done; Diagnosis.stop says which
-    (STOPS), and Diagnosis.noise how much of what remains the noise accounts for.
+    (STOPS), and Diagnosis.noise how much of what remains the noise accounts for. Then every kept
+    effect is re-scored with all the others in place once more, those that share a residual are fitted
+    jointly (jointfit.py), and those the joint fit puts below their floor become negligible.
 
 Candidates the data cannot identify (the joints follow them, or there is no gyro) come back
-without a fit and are listed, from the first round, in Diagnosis.unobservable.
+without a fit and are listed, from the first round, in Diagnosis.unobservable; so are the turns of
+each sensor the joints follow (Diagnosis.unseen) and those the data tell from a neighbour's only
+poorly (Diagnosis.confounded).
 
 Subjects (recordings of the same length) run as one batch: every round tracks all of them at
 once, those whose model has changed in a batch of their own.
