@@ -1,4 +1,6 @@
-"""Shared fixtures: the published reference models (skipped when ../shared is absent)."""
+"""Shared fixtures, and the one way a test reaches ../shared (the published reference models, the real
+recordings in ../shared/data): `shared_file`, which skips the test, naming the path, when it is absent
+(a user's clone has no ../shared). Paths are resolved from the repository, never the working directory."""
 
 import os
 from pathlib import Path
@@ -12,14 +14,23 @@ REPO = Path(__file__).resolve().parents[1]
 
 if os.environ.get("PYTEST_XDIST_WORKER"):  # `make test` runs one worker per core: more torch threads would only contend
     torch.set_num_threads(1)
-REFERENCE = REPO.parent / "shared" / "reference-models"
+SHARED = REPO.parent / "shared"  # beside the checkout, where the project's machines keep it
+DATA = SHARED / "data"
+REFERENCE = SHARED / "reference-models"
+
+
+def shared_file(relative: str | Path, root: Path = DATA) -> Path:
+    """A file of ../shared/data (`relative` to it, e.g. "c3d/HC002D02.c3d"; or to `root`), as an absolute
+    path; the calling test is skipped, with the path named, when it is absent."""
+    path = root / relative
+    if not path.is_file():
+        pytest.skip(f"{path} absent: ../shared is not beside this checkout")
+    return path
 
 
 def reference_urdf(name: str) -> Path:
-    path = REFERENCE / name
-    if not path.is_file():
-        pytest.skip(f"reference model {path} not available")
-    return path
+    """A published URDF of ../shared/reference-models (skipped when absent)."""
+    return shared_file(name, REFERENCE)
 
 
 def random_configurations(model, batch: int, seed: int, joint_scale: float = 1.0):
@@ -86,3 +97,41 @@ def human48_walk(seconds: float, seed: int, orientation_noise: float, gyro_noise
     model = load_model("human48")
     return model, human_urdf(48), scenario("walking", model, TRACKED_LINKS["human48"], seconds, 50.0, seed=seed,
                                            orientation_noise=orientation_noise, gyro_noise=gyro_noise)
+
+
+@pytest.fixture(scope="session")
+def pig_session(tmp_path_factory):
+    """A Plug-in Gait session the tests write (tests/written.py), as a Vicon one is: a 1.45 m, 32.1 kg
+    subject's static trial (51 frames at 100 Hz, standing in the N-pose facing +x) and a 2 s walk at
+    100 Hz (human48's walking scenario), with the model and the recordings they were written from."""
+    pytest.importorskip("ezc3d")
+    from types import SimpleNamespace
+
+    from written import plug_in_gait_c3d, standing, walk
+
+    from torchik.method.models import load_model
+    from torchik.method.models.human import HumanSubject
+
+    folder = tmp_path_factory.mktemp("plug_in_gait")
+    subject = HumanSubject(height=1.45, mass=32.1)
+    model = load_model("human48", subject=subject)
+    still, walking = standing(model, "npose", frames=51, rate=100.0), walk(model, seconds=2.0, rate=100.0)
+    return SimpleNamespace(model=model, subject=subject, still=still, walking=walking,
+                           static=plug_in_gait_c3d(folder / "HC000S01.c3d", model, still, subject),
+                           walk=plug_in_gait_c3d(folder / "HC000W01.c3d", model, walking, subject))
+
+
+@pytest.fixture(scope="session")
+def mvn_export(tmp_path_factory):
+    """An Xsens MVN export the tests write (tests/written.py): human66's walking scenario, 1.5 s at 60 Hz,
+    as MVNX with segments, sensors, joints and calibration frames; with the model and the recording."""
+    from types import SimpleNamespace
+
+    from written import walk, xsens_mvnx
+
+    from torchik.method.models import load_model
+
+    model = load_model("human66")
+    walking = walk(model, seconds=1.5, rate=60.0)
+    return SimpleNamespace(model=model, walking=walking,
+                           path=xsens_mvnx(tmp_path_factory.mktemp("mvn") / "walk.mvnx", model, walking))

@@ -1,10 +1,13 @@
-"""bench: every pipeline of the benchmark runs and tracks, and bad input is refused."""
+"""bench: every pipeline of the benchmark runs and tracks, the table's ratios and its one-subject
+line compare the same measured quantity, and bad input is refused."""
+
+import re
 
 import pytest
 
 import torchik.method.captured as captured
 from torchik.cli import main
-from torchik.pipelines.bench import run, table
+from torchik.pipelines.bench import Measurement, _percentiles, run, table
 
 
 def test_every_pipeline_runs_and_tracks_the_motion(monkeypatch):
@@ -64,3 +67,29 @@ def test_with_compile_a_step_that_cannot_be_captured_stops_the_bench_with_exit_c
                      "--seconds", "0.2", "--quiet"])
     assert code == 2
     assert "--compile: the step could not be captured here" in capsys.readouterr().err
+
+
+def _measured(model: str, pipeline: str, batch: int, step_ms: list[float]) -> Measurement:
+    """A measurement as the bench makes it from its steps' times (ms), each timed alone."""
+    times = [t / 1e3 for t in step_ms]
+    return Measurement(model, pipeline, batch, len(times), sum(times), batch * len(times) / sum(times),
+                       **_percentiles(times))
+
+
+def test_the_tables_ratio_and_the_one_subject_line_compare_the_same_median_step():
+    """Issue 36: one run printed `torchik compiled B=1 ... 0.7x vs best peer, 0.44 ms/step, p50 0.134 ms`
+    and below it `torchik compiled 0.134 ms median step, pinocchio+daqp 0.280 ms: 2.08x`: the row's ratio
+    was the mean's, the line's the median's. Here a step of 0.134 ms, one in ten 3.2 ms (mean 0.44 ms):
+    the row's ratio, the line's and the batched row's are all at the median step."""
+    results = [_measured("human66", "torchik batched", 64, [2.0] * 20 + [9.0] * 5),
+               _measured("human66", "torchik compiled", 1, [0.134] * 90 + [3.2] * 10),
+               _measured("human66", "pinocchio+daqp", 1, [0.280] * 100),
+               _measured("human66", "pinocchio+piqp", 1, [0.9] * 100)]
+    lines = table(results).splitlines()
+    row = lambda pipeline: next(line for line in lines if line.startswith("human66 ") and pipeline in line)  # noqa: E731
+    line = next(line for line in lines if line.startswith("human66, one subject"))
+    ratios = lambda text: re.findall(r"(\d+\.\d+)x", text)  # noqa: E731
+    assert ratios(row("torchik compiled")) == ratios(line) == [f"{0.280 / 0.134:.2f}"]
+    assert ratios(row("torchik batched")) == [f"{64 * 0.280 / 2.0:.2f}"]  # per subject: B over the median step
+    # the table says which: the ratio's column is at the median, its legend says so
+    assert "vs best peer p50" in lines[0] and any(text.startswith("p50, p99, mean: a step's median") for text in lines)

@@ -1,17 +1,22 @@
-"""io.bvh: BVH hierarchies to world rotations (channel order honoured), units told apart, velocities from the data."""
+"""io.bvh: BVH hierarchies to world rotations (channel order honoured), units told apart, velocities from the data.
+
+Small files written here check one thing each; a walk written through io.bvh_writer on a HumanIK
+skeleton (as MotionBuilder or Mixamo export one) checks the reader on a whole body's file, and the
+real files of ../shared/data check it again where they are beside the checkout."""
 
 import itertools
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from conftest import shared_file
+from written import walk
 
 from torchik.io import RecordingError
-from torchik.io.bvh import read_bvh
+from torchik.io.bvh import Y_UP_TO_Z_UP, read_bvh
 from torchik.method import so3
-
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "bvh"
+from torchik.method.models import load_model
+from torchik.synthetic.skeletons import humanik_skeleton, write_scenario_bvh
 
 
 def bvh_text(order=("Z", "X", "Y"), frames=40, dt=0.01, unit=1.0, rate_deg=90.0, arm_angles=(10.0, 20.0, 30.0)):
@@ -41,9 +46,6 @@ def euler(order, angles_deg):
         w["XYZ".index(axis)] = np.radians(angle)
         R = R @ so3.exp(w)
     return R.numpy()
-
-
-Y_UP_TO_Z_UP = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 
 @pytest.mark.parametrize("order", list(itertools.permutations("XYZ")))
@@ -92,10 +94,75 @@ def test_undecidable_units_and_malformed_files_are_errors_that_say_why(tmp_path)
         read_bvh(path)
 
 
-@pytest.mark.skipif(not SHARED.is_dir(), reason="../shared/data absent")
+@pytest.fixture(scope="module")
+def humanik_walk(tmp_path_factory):
+    """human66's walk (2 s at 60 Hz) written as a Mixamo-named HumanIK BVH: (model, recording, path)."""
+    model = load_model("human66")
+    recording = walk(model, seconds=2.0, rate=60.0)
+    path = write_scenario_bvh(tmp_path_factory.mktemp("bvh") / "walk.bvh", recording, model, "mixamorig:")
+    return model, recording, path
+
+
+def test_a_written_humanik_walk_reads_as_the_walk_it_was_written_from(humanik_walk):
+    """A whole body's file (22 joints, 6 decimals of centimetres and degrees, 60 Hz): the joints in the
+    hierarchy's order, centimetres told from the skeleton's height, each joint's frame its link's (in the
+    file's Y-up axes) and each leg joint at its link's origin, to the file's decimals; the walk's 4 km/h."""
+    model, truth, path = humanik_walk
+    rec = read_bvh(path)
+    skeleton = humanik_skeleton(model, "mixamorig:")
+    assert sorted(rec.links) == sorted(j.name for j in skeleton) and len(rec.links) == 22
+    assert rec.links[:3] == ("mixamorig:Hips", "mixamorig:Spine", "mixamorig:Spine1") and rec.base_link == rec.links[0]
+    skeleton = sorted(skeleton, key=lambda j: rec.links.index(j.name))  # depth first, as the file lists them
+    assert rec.meta["units"] == "cm" and len(rec.time) == len(truth.time)
+    assert abs(rec.frame_rate - 60.0) < 1e-5  # the frame time, 1/60 s, written to 9 decimals
+    assert rec.meta["clock"] == "shared" and rec.meta["angular_velocity"] == "derived" and not rec.meta["missing_frames"]
+    rows = [truth.links.index(j.link) for j in skeleton]
+    R = truth.orientation[:, rows] @ Y_UP_TO_Z_UP  # the link's frame, its axes named as the file's
+    angle = so3.log(torch.from_numpy(np.swapaxes(rec.orientation, -1, -2) @ R)).norm(dim=-1)
+    assert float(angle.max()) < 1e-6
+    # the legs hang from the hips bone by bone as in the model; above the Spine the model's L3, which
+    # HumanIK has no joint for, bends between joints: those positions are the skeleton's, not the model's
+    legs = [i for i, j in enumerate(skeleton) if j.name.endswith(("Hips", ":Spine", "UpLeg", "Leg", "Foot", "ToeBase"))]
+    assert len(legs) == 10
+    np.testing.assert_allclose(rec.position[:, legs], truth.position[:, [rows[i] for i in legs]], atol=1e-7, rtol=0)
+    np.testing.assert_allclose(rec.base_position, truth.base_position, atol=1e-8, rtol=0)
+    speed = np.linalg.norm(rec.base_linear_velocity[:, :2], axis=-1)
+    assert abs(np.median(speed) - 4.0 / 3.6) < 0.01
+    # central differences of the orientations: the links' angular velocities to O(dt^2) at 60 Hz
+    assert np.abs(rec.angular_velocity - truth.angular_velocity[:, rows])[1:-1].max() < 0.02
+
+
+def test_a_dropout_in_a_written_walk_marks_the_joint_and_those_it_carries(humanik_walk, tmp_path):
+    """A NaN in the right forearm's channels at frame 30: the forearm and the hand are missing there and
+    only there; every other joint, and the frames around, as read from the whole file."""
+    _, _, path = humanik_walk
+    lines = path.read_text().splitlines()
+    motion = lines.index("MOTION") + 3  # MOTION, Frames:, Frame Time:
+    whole = read_bvh(path)
+    channel = 6 + 3 * (whole.links.index("mixamorig:RightForeArm") - 1)  # the root's 6, then 3 a joint
+    row = lines[motion + 30].split()
+    row[channel + 1] = "nan"
+    lines[motion + 30] = " ".join(row)
+    (tmp_path / "gap.bvh").write_text("\n".join(lines) + "\n")
+    rec = read_bvh(tmp_path / "gap.bvh")
+    missing = np.isnan(rec.orientation).any(axis=(-1, -2))
+    assert rec.meta["missing_frames"] == {"mixamorig:RightForeArm": 1, "mixamorig:RightHand": 1}
+    assert missing.nonzero()[0].tolist() == [30, 30]
+    known = ~missing
+    np.testing.assert_array_equal(rec.orientation[known], whole.orientation[known])
+
+
+def test_a_cut_written_walk_is_refused_with_the_frames_it_announced(humanik_walk, tmp_path):
+    _, truth, path = humanik_walk
+    text = path.read_text()
+    (tmp_path / "cut.bvh").write_text(text[: int(len(text) * 0.9)])
+    with pytest.raises(RecordingError, match=f"{len(truth.time)} frames announced"):
+        read_bvh(tmp_path / "cut.bvh")
+
+
 @pytest.mark.parametrize("name", ["bandai_walk_normal_001.bvh", "bandai_run_normal_001.bvh", "cmu_131_01.bvh"])
 def test_the_real_bvh_files_convert(name):
-    rec = read_bvh(SHARED / name)
+    rec = read_bvh(shared_file(f"bvh/{name}"))
     R = rec.orientation
     assert np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max() < 1e-9
     assert 0.6 < np.median(rec.base_position[:, 2]) < 1.1  # the hips about a metre above the floor

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import shared_file
 
 from torchik.cli import build_parser
 
@@ -100,6 +101,7 @@ def test_track_a_scenario_end_to_end_with_report_and_trajectory(tmp_path, cli):
     assert code == 0, err
     assert "MNTE after 2 s" in stdout
     data = json.loads(report.read_text())
+    assert data["statistics_from_s"] == 2.0
     assert data["frames"] == 301 and data["mnte"]["p99"] < 1e-6 and data["qp_fallbacks"] == 0
     assert data["joint_error_rad"]["max"] < 1e-3
     trajectory = np.load(out)
@@ -135,16 +137,58 @@ def test_track_a_recording_file_and_refuse_bad_input(tmp_path, cli):
     assert code == 2 and "no built-in map fits" in err and "the closest" in err
 
 
-def test_track_through_a_map_with_calibration(cli):
-    shared = REPO.parent / "shared" / "data" / "c3d"
-    if not (shared / "HC002D02.c3d").is_file():
-        pytest.skip("../shared/data absent")
-    code, stdout, err = cli("track", "--input", shared / "HC002D25.c3d", "--map", "plugin_gait_to_human",
-                            "--calibration", shared / "HC002D02.c3d", "--model", "human48")
+@pytest.mark.parametrize("session", ["written", "shared"])
+def test_track_through_a_map_with_calibration(cli, session, request):
+    """A Plug-in Gait walk and its static trial: the session the tests write (conftest's pig_session)
+    or the real HC002 one of ../shared/data."""
+    if session == "written":
+        static, walk = request.getfixturevalue("pig_session").static, request.getfixturevalue("pig_session").walk
+    else:
+        static, walk = shared_file("c3d/HC002D02.c3d"), shared_file("c3d/HC002D25.c3d")
+    code, stdout, err = cli("track", "--input", walk, "--map", "plugin_gait_to_human", "--calibration", static,
+                            "--model", "human48")
     assert code == 0, err
     assert "through map 'plug-in gait to human'" in stdout
-    code, _, err = cli("track", "--input", shared / "HC002D25.c3d", "--map", "xsens_to_human", "--model", "human48")
+    code, _, err = cli("track", "--input", walk, "--map", "xsens_to_human", "--model", "human48")
     assert code == 2 and "lacks" in err
+
+
+def test_track_a_lower_body_trial_leaving_the_trunk_head_and_arms_to_the_model(tmp_path, cli):
+    """A Plug-in Gait trial with only the pelvis and legs is tracked (exit 0), and the report says
+    which links had no segment."""
+    from test_maps import LOWER_BODY, lower_body_plug_in_gait
+
+    from torchik.io import save_recording
+
+    path = save_recording(lower_body_plug_in_gait(), tmp_path / "lower.npz")
+    code, stdout, err = cli("track", "--input", path, "--model", "human48", "--report", tmp_path / "r.json")
+    assert code == 0, err
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["links"] == len(LOWER_BODY) and "through map 'plug-in gait to human'" in report["source"]
+    assert report["left_to_model"] == ["T8", "Head", "RightShoulder", "RightUpperArm", "RightForeArm", "RightHand",
+                                       "LeftShoulder", "LeftUpperArm", "LeftForeArm", "LeftHand"]
+    assert "left to the model (no segment in the recording): T8, Head, RightShoulder" in stdout
+    assert report["mnte"]["max"] < 1e-3  # the legs followed
+
+
+def test_a_short_trial_is_tracked_from_its_first_frames_posture_and_its_report_says_over_which_time(tmp_path, cli):
+    """A 1.2 s trial (a clinical pass over the force plates): the estimate follows from frame 0, not
+    after a transient from the zero posture; the statistics are the whole trial's, and the report
+    and its printout say so instead of naming a window after 2 s that the trial does not have."""
+    from torchik.io import save_recording
+    from torchik.method.models import TRACKED_LINKS, load_model
+    from torchik.synthetic.scenarios import scenario
+
+    walk = scenario("walking", load_model("human48"), TRACKED_LINKS["human48"], duration=1.2)
+    path = save_recording(walk, tmp_path / "short.npz")
+    code, stdout, err = cli("track", "--input", path, "--model", "human48", "--report", tmp_path / "r.json",
+                            "--out", tmp_path / "e.npz")
+    assert code == 0, err
+    mnte = np.load(tmp_path / "e.npz")["mnte"]
+    assert mnte[0] < 1e-3 and mnte.max() < 1e-3  # from the zero posture: 0.2 at frame 0
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["statistics_from_s"] == 0.0 and report["settled_s"] > 0 and report["mnte"]["p99"] < 1e-3
+    assert "MNTE over the whole 1.20 s (shorter than the 2 s transient" in stdout and "after 2 s" not in stdout
 
 
 def readme_main_command() -> str:
@@ -187,7 +231,9 @@ def human_recording(tmp_path_factory):
     (("track", "--input", "missing.npz"), "missing.npz: no such file"),
     (("track", "--model", "robot"), "invalid choice: 'robot' (choose from 'human66', 'human48', 'icub')"),
     (("track", "--scenario", "dancing"), "unknown scenario 'dancing'; valid: tpose, walking, running"),
-    (("track", "--input", "RECORDING", "--map", "cmu_to_human"), "that the recording lacks; it has ['Pelvis'"),
+    (("track", "--input", "RECORDING", "--map", "cmu_to_human"), "needs segment 'Hips', its base link 'Pelvis', that "
+                                                                 "the recording lacks: nothing to track without it; "
+                                                                 "it has ['Pelvis'"),
     (("track", "--input", "RECORDING", "--map", "no_such_map"), "built-in maps: bandai_to_human"),
     (("track", "--rrd", "walk.txt"), "must end in .rrd"),
     (("track", "--rrd", "no/such/folder/walk.rrd"), "no folder no/such/folder to write into"),
@@ -211,12 +257,14 @@ def test_an_interrupted_track_leaves_valid_shorter_outputs(tmp_path, cli, monkey
     from test_rrd import read_rrd
 
     from torchik.method.tracker import DynamicalIK
+    from torchik.pipelines.track import SETTLE
 
     step, calls = DynamicalIK.step, []
+    settling = round(SETTLE * 100)  # the steps on the first frame at the scenario's 100 Hz, before the run's
 
-    def interrupted_after_7(self, *args, **kwargs):  # Ctrl-C during the 8th step
+    def interrupted_after_7(self, *args, **kwargs):  # Ctrl-C during the run's 8th step
         calls.append(1)
-        if len(calls) > 7:
+        if len(calls) > settling + 7:
             raise KeyboardInterrupt
         return step(self, *args, **kwargs)
 

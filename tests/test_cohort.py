@@ -20,7 +20,7 @@ from torchik.pipelines.cohort.plan import plan_batches
 from torchik.pipelines.cohort.run import EXIT_ONCE_ENV
 from torchik.pipelines.cohort.synthetic import synthetic_trials
 from torchik.pipelines.cohort.trial import load_result
-from torchik.pipelines.track import track_recording
+from torchik.pipelines.track import SETTLE, track_recording
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 GOOD = 40
@@ -92,7 +92,7 @@ def _alone(spec, backend=None):
     settings = TrackerSettings(position_gain=spec.position_gain, orientation_gain=spec.orientation_gain,
                                scheme=spec.scheme, backend=backend or spec.backend)
     return track_recording(model, load_recording(spec.recording), TRACKED_LINKS[spec.model], settings,
-                           transient=spec.transient)
+                           transient=spec.transient, settle=SETTLE)
 
 
 def test_the_summary_equals_tracking_each_trial_alone(full_run, with_bad_trials):
@@ -279,3 +279,23 @@ def test_trials_with_the_same_id_are_refused(study, capsys, tmp_path):
     assert main(["cohort", str(manifest), "--out", str(tmp_path)]) == 2
     assert "trials[1] (a): trial id 'a' is used twice" in capsys.readouterr().err
 
+
+
+def test_a_short_trials_row_holds_the_whole_trial_from_its_first_frames_posture(tmp_path):
+    """A 1.2 s trial, shorter than its 2 s transient: tracked from rest in its first frame's
+    posture, its row's statistics are the whole trial's (statistics_from_s 0) with no transient
+    from the zero posture in them (its MNTE of 0.2 at frame 0 was the row's max)."""
+    from torchik.io import save_recording
+    from torchik.pipelines.cohort.manifest import TrialSpec
+    from torchik.pipelines.cohort.trial import prepare, track_together, trial_row
+    from torchik.pipelines.evaluation import tracking_errors
+    from torchik.synthetic.scenarios import scenario
+
+    path = save_recording(scenario("walking", load_model("human48"), TRACKED_LINKS["human48"], duration=1.2),
+                          tmp_path / "short.npz")
+    p = prepare(TrialSpec(trial="short", subject="s", recording=str(path), model="human48"))
+    trajectory, _ = track_together([p])
+    trajectory.diagnostics.update(tracking_errors(p.model, trajectory, p.sequence, p.links, p.spec.scheme))
+    row = trial_row(p, trajectory)
+    assert row["status"] == "ok" and row["mnte_max"] < 1e-3 and row["mnte_p99"] < 1e-3
+    assert row["statistics_from_s"] == 0.0

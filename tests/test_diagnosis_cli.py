@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 import rerun
+from conftest import shared_file
 
 from torchik.cli import main
 from torchik.io import angular_velocity_from_orientations, read, save_recording
@@ -26,7 +26,6 @@ from torchik.pipelines.diagnosis.synthetic import recording_of, with_missing_dof
 from torchik.synthetic.scenarios import scenario
 
 pytestmark = pytest.mark.usefixtures("one_thread")
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 LINKS = TRACKED_LINKS["human48"]
 
 
@@ -102,13 +101,12 @@ def test_what_the_data_cannot_identify_is_said():
     assert {("gyro_bias", link) for link in links} <= {(e.kind, e.target) for e in found[1].unobservable}
 
 
-@pytest.mark.skipif(not (DATA / "mvnx" / "test_mocap.mvnx").is_file(), reason="../shared/data absent")
 @pytest.mark.parametrize("name", ["human48", "human66"])
 def test_measured_mvnx_runs_to_the_end_and_lowers_the_error(name):
     """The Xsens recording (real gyros, 60 Hz): the loop runs to its end with finite errors, the
     overall MNTE after is at most the MNTE before (the loop only checks each effect's own error),
     and Human66 (ball joints) reports every misalignment as not identifiable."""
-    recording = read(str(DATA / "mvnx" / "test_mocap.mvnx"))
+    recording = read(str(shared_file("mvnx/test_mocap.mvnx")))
     model, links = load_model(name), TRACKED_LINKS[name]
     d, = diagnose(model, human_urdf(int(name[-2:])), [recording], links, max_effects=3)
     assert d.after.overall["mnte"] <= d.before.overall["mnte"]

@@ -4,10 +4,10 @@ refuses bad input."""
 
 import csv
 import math
-from pathlib import Path
 
 import pytest
 import torch
+from conftest import shared_file
 
 from torchik.cli import main
 from torchik.io import save_recording
@@ -25,7 +25,6 @@ from torchik.pipelines.experiment import (
 from torchik.synthetic.scenarios import scenario
 
 SHORT = Settings(duration=0.6, transient=0.2, repeats=1, convergence_seconds=0.2)
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 PNG = b"\x89PNG\r\n\x1a\n"
 
 
@@ -113,10 +112,9 @@ def test_a_recording_given_with_data_replaces_the_scenarios(tmp_path):
     assert {(r["model"], r["scenario"]) for r in table} == {("human48", "jog")} and len(table) == len(METHODS)
 
 
-@pytest.mark.skipif(not (DATA / "mvnx" / "test_mocap.mvnx").is_file(), reason="../shared/data absent")
 def test_a_real_xsens_recording_runs_on_a_human_model_and_on_icub(tmp_path):
     assert main(["experiment", "paper", "--out", str(tmp_path), "--quiet", "--data",
-                 str(DATA / "mvnx" / "test_mocap.mvnx"), "--models", "human48", "icub", "--repeats", "1",
+                 str(shared_file("mvnx/test_mocap.mvnx")), "--models", "human48", "icub", "--repeats", "1",
                  "--max-iterations", "10", "--convergence-seconds", "0.1"]) == 0
     with open(tmp_path / "results.csv") as f:
         table = list(csv.DictReader(f))

@@ -10,6 +10,7 @@ import time
 
 import pytest
 import torch
+from conftest import shared_file
 
 from torchik.io import read
 from torchik.io.maps import load_map, map_recording
@@ -21,8 +22,6 @@ from torchik.pipelines.live import LiveOptions, Selection, track_live
 from torchik.pipelines.replay import Faults, replay, wire_recording
 from torchik.pipelines.track import track_recording
 from torchik.synthetic.scenarios import scenario
-
-MVNX = "../shared/data/mvnx/test_mocap.mvnx"
 
 
 @pytest.fixture(scope="module")
@@ -63,8 +62,16 @@ def live_run(model, recording, link_map=None, faults=None, characters=1, speed=3
     return result, logs[0]
 
 
-def test_a_fault_free_replay_of_the_mvnx_recording_tracks_as_track_does_on_what_the_wire_carried(model):
-    recording = read(MVNX)
+@pytest.fixture(params=["written", "shared"])
+def mvnx(request):
+    """An MVNX file: the MVN export the tests write (conftest's mvn_export), or the real one in ../shared/data."""
+    if request.param == "written":
+        return request.getfixturevalue("mvn_export").path
+    return shared_file("mvnx/test_mocap.mvnx")
+
+
+def test_a_fault_free_replay_of_the_mvnx_recording_tracks_as_track_does_on_what_the_wire_carried(model, mvnx):
+    recording = read(mvnx)
     result, log = live_run(model, recording, load_map("xsens_to_human"))
     offline, _ = track_recording(model, *_mapped(wire_recording(recording), model))
     live = result.trajectories[0]

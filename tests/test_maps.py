@@ -1,13 +1,14 @@
 """io.maps: link maps rename and re-frame a recording's segments; calibration recovers unknown offsets exactly."""
 
-from pathlib import Path
+from dataclasses import replace
 
 import numpy as np
 import pytest
 import torch
+from conftest import shared_file
 
 from torchik.io import RecordingError, apply_map, calibrate, load_map
-from torchik.io.maps import LinkEntry, LinkMap, reference_configuration
+from torchik.io.maps import LinkEntry, LinkMap, built_in_maps, reference_configuration, resolve
 from torchik.io.recording import Recording
 from torchik.io.targets import recording_targets
 from torchik.method import so3
@@ -15,8 +16,6 @@ from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.method.state import State
 from torchik.method.tracker import DynamicalIK
 from torchik.synthetic.scenarios import scenario
-
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
 def test_the_human_to_icub_offsets_make_icubs_zero_configuration_the_human_t_pose_for_trunk_and_legs():
@@ -79,11 +78,9 @@ def test_calibration_recovers_unknown_sensor_offsets_exactly():
 def test_maps_refuse_what_they_cannot_do():
     human = load_model("human66")
     rec = scenario("tpose", human, ["Pelvis", "Head"], duration=0.2)
-    with pytest.raises(RecordingError, match=r"needs segments \[.*'LeftFoot'.*\] that the recording lacks"):
-        apply_map(rec, load_map("human_to_icub"))
     with pytest.raises(RecordingError, match="built-in maps: .*human_to_icub.*xsens_to_human"):
         load_map("bvh_to_robot")
-    with pytest.raises(RecordingError, match="needs segments .* that the recording lacks"):
+    with pytest.raises(RecordingError, match="needs segment 'PEL', its base link 'Pelvis', that the recording lacks"):
         apply_map(rec, load_map("plugin_gait_to_human"))
     full = scenario("tpose", human, TRACKED_LINKS["human66"], duration=0.2)
     head_based = Recording(time=full.time, links=full.links, orientation=full.orientation,
@@ -94,35 +91,40 @@ def test_maps_refuse_what_they_cannot_do():
         apply_map(head_based, load_map("xsens_to_human"))
 
 
-@pytest.mark.skipif(not (SHARED / "c3d" / "HC002D02.c3d").is_file(), reason="../shared/data absent")
-def test_plug_in_gait_calibrated_on_the_static_trial_then_applied_to_a_walk_is_tracked():
+@pytest.mark.parametrize("session", ["written", "shared"])
+def test_plug_in_gait_calibrated_on_the_static_trial_then_applied_to_a_walk_is_tracked(session, request):
+    """The session the tests write (conftest's pig_session), tracked with the model of the subject it
+    was written from: the targets exactly; a real one (HC002) on a generic model: close, not exact."""
     from torchik.io import read_c3d
 
-    model = load_model("human48")
-    calibrated = calibrate(load_map("plugin_gait_to_human"), read_c3d(SHARED / "c3d" / "HC002D02.c3d"), model, frame=0)
-    walk = apply_map(read_c3d(SHARED / "c3d" / "HC002D25.c3d"), calibrated)
+    if session == "written":
+        written = request.getfixturevalue("pig_session")
+        model, static, dynamic, bound = written.model, written.static, written.walk, 1e-6
+    else:
+        model, bound = load_model("human48"), 0.1
+        static, dynamic = shared_file("c3d/HC002D02.c3d"), shared_file("c3d/HC002D25.c3d")
+    calibrated = calibrate(load_map("plugin_gait_to_human"), read_c3d(static), model, frame=0)
+    walk = apply_map(read_c3d(dynamic), calibrated)
     assert walk.links[0] == "Pelvis" and len(walk.links) == 19
     trajectory = DynamicalIK(model, walk.links, dt=0.01).run(recording_targets(walk, walk.links))
     assert bool(torch.isfinite(trajectory.joint_positions).all())
-    assert float(trajectory.diagnostics["mnte"][100:].median()) < 0.1  # a real subject on a generic model: close, not exact
+    assert float(trajectory.diagnostics["mnte"][100:].median()) < bound
 
 
-@pytest.mark.skipif(not (SHARED / "bvh" / "cmu_131_01.bvh").is_file(), reason="../shared/data absent")
 def test_the_cmu_skeleton_calibrated_on_its_rest_pose_is_tracked_by_human66():
     from torchik.io import read_bvh
 
     model = load_model("human66")
-    mapped = apply_map(read_bvh(SHARED / "bvh" / "cmu_131_01.bvh"), load_map("cmu_to_human"), model)
+    mapped = apply_map(read_bvh(shared_file("bvh/cmu_131_01.bvh")), load_map("cmu_to_human"), model)
     assert mapped.meta["link_map"]["calibration"]["frame"] == "rest"
     trajectory = DynamicalIK(model, mapped.links, dt=1 / 120).run(recording_targets(mapped, mapped.links))
     assert float(trajectory.diagnostics["mnte"][240:].median()) < 1e-4
 
 
-@pytest.mark.skipif(not (SHARED / "bvh" / "bandai_walk_normal_001.bvh").is_file(), reason="../shared/data absent")
 def test_a_rest_pose_that_is_not_a_standing_posture_is_not_offered_for_calibration():
     from torchik.io import read_bvh
 
-    bandai = read_bvh(SHARED / "bvh" / "bandai_walk_normal_001.bvh")  # every bone along x at rest
+    bandai = read_bvh(shared_file("bvh/bandai_walk_normal_001.bvh"))  # every bone along x at rest
     assert bandai.meta["rest_pose"] is None
     link_map = LinkMap("bandai", "human66", (LinkEntry("Pelvis", "Hips", None), LinkEntry("Head", "Head", None)),
                        "Pelvis", "Hips", "npose", None, "<test>", None, "rest")
@@ -130,13 +132,12 @@ def test_a_rest_pose_that_is_not_a_standing_posture_is_not_offered_for_calibrati
         calibrate(link_map, bandai, load_model("human66"))
 
 
-@pytest.mark.skipif(not (SHARED / "bvh" / "bandai_walk_normal_002.bvh").is_file(), reason="../shared/data absent")
 def test_the_bandai_skeleton_calibrated_on_a_standing_frame_is_tracked_at_its_30_hz():
     from torchik.io import read_bvh
 
     model = load_model("human66")
-    calibrated = calibrate(load_map("bandai_to_human"), read_bvh(SHARED / "bvh" / "bandai_walk_normal_001.bvh"), model, 0)
-    walk = apply_map(read_bvh(SHARED / "bvh" / "bandai_walk_normal_002.bvh"), calibrated)
+    calibrated = calibrate(load_map("bandai_to_human"), read_bvh(shared_file("bvh/bandai_walk_normal_001.bvh")), model, 0)
+    walk = apply_map(read_bvh(shared_file("bvh/bandai_walk_normal_002.bvh")), calibrated)
     trajectory = DynamicalIK(model, walk.links, position_gain=10.0, orientation_gain=10.0, dt=1 / 30).run(
         recording_targets(walk, walk.links))
     assert bool(torch.isfinite(trajectory.joint_positions).all()) and bool(trajectory.diagnostics["solved"].all())
@@ -146,23 +147,63 @@ def test_the_bandai_skeleton_calibrated_on_a_standing_frame_is_tracked_at_its_30
 def test_auto_names_the_closest_map_and_what_it_misses():
     from torchik.io.maps import choose_map
 
-    names = ("Hips", "Spine", "Head", "LeftArm")
-    with pytest.raises(RecordingError, match=r"the closest, 'humanik_to_human', misses \[.*'RightShoulder'"):
-        choose_map(names)
+    assert choose_map(("Hips", "Spine", "Head", "LeftArm")) == "humanik_to_human"  # the rest left to the model
+    with pytest.raises(RecordingError, match="the closest, 'humanik_to_human', misses its base segment 'Hips' and 16 more"):
+        choose_map(("Spine", "Head", "LeftArm"))
 
 
-@pytest.mark.parametrize("file,explicit", [("bvh/cmu_131_01.bvh", "cmu_to_human"),
+LOWER_BODY = {"Pelvis": "PEL", "LeftUpperLeg": "LFE", "LeftLowerLeg": "LTI", "LeftFoot": "LFO", "LeftToe": "LTO",
+              "RightUpperLeg": "RFE", "RightLowerLeg": "RTI", "RightFoot": "RFO", "RightToe": "RTO"}
+
+
+def lower_body_plug_in_gait(duration: float = 1.0) -> Recording:
+    """A Human48 walk with only the Plug-in Gait lower-body segments (the clinical marker set), in
+    their names: PEL, LFE, LTI, LFO, LTO, RFE, RTI, RFO, RTO."""
+    walk = scenario("walking", load_model("human48"), tuple(LOWER_BODY), duration=duration)
+    return replace(walk, links=tuple(LOWER_BODY.values()), base_link="PEL")
+
+
+def test_a_lower_body_plug_in_gait_recording_is_mapped_and_the_rest_is_left_to_the_model():
+    from torchik.io import map_recording
+    from torchik.io.maps import choose_map
+
+    recording = lower_body_plug_in_gait()
+    assert choose_map(recording.links) == "plugin_gait_to_human"
+    mapped, _ = map_recording(recording, "auto", load_model("human48"))
+    assert set(mapped.links) == set(LOWER_BODY) and mapped.links[0] == "Pelvis"
+    assert mapped.meta["link_map"]["left_out"] == ["T8", "Head", "RightShoulder", "RightUpperArm", "RightForeArm",
+                                                   "RightHand", "LeftShoulder", "LeftUpperArm", "LeftForeArm", "LeftHand"]
+    assert mapped.meta["link_map"]["segments"] == LOWER_BODY
+
+
+@pytest.mark.parametrize("name", built_in_maps())
+def test_every_built_in_map_leaves_what_a_recording_lacks_to_the_model_and_needs_only_its_base(name):
+    link_map = load_map(name)
+    last = link_map.entries[-1]  # a toe or a foot: no other link's alternative
+    resolved = resolve(link_map, (link_map.base_segment, last.segment, "Unrelated"))
+    assert resolved.links == (link_map.base_link, last.link)
+    assert resolved.left_out == tuple(e.link for e in link_map.entries[1:-1])
+    with pytest.raises(RecordingError, match=f"needs segment '{link_map.base_segment}', its base link "
+                                             f"'{link_map.base_link}', that the recording lacks: nothing to track"):
+        resolve(link_map, tuple(e.segment for e in link_map.entries[1:]))
+
+
+@pytest.mark.parametrize("file,explicit", [("written MVNX", "xsens_to_human"),
+                                           ("written Plug-in Gait C3D", "plugin_gait_to_human"),
+                                           ("bvh/cmu_131_01.bvh", "cmu_to_human"),
                                            ("bvh/bandai_walk_normal_001.bvh", "bandai_to_human"),
                                            ("mvnx/test_mocap.mvnx", "xsens_to_human")])
-def test_auto_picks_each_shared_files_map_with_the_same_result(file, explicit):
-    """The shared CMU, Bandai and MVNX files: --map auto is their explicit map, and the mapped
+def test_auto_picks_each_files_map_with_the_same_result(file, explicit, request):
+    """The files the tests write (an MVN export, a Plug-in Gait walk; the HumanIK BVH: test_skeletons)
+    and the shared CMU, Bandai and MVNX files: --map auto is their explicit map, and the mapped
     recordings are the same arrays (so the tracking is the same)."""
     from torchik.io import map_recording, read
 
-    if not (SHARED / file).is_file():
-        pytest.skip("../shared/data absent")
+    path = {"written MVNX": lambda: request.getfixturevalue("mvn_export").path,
+            "written Plug-in Gait C3D": lambda: request.getfixturevalue("pig_session").walk}.get(
+        file, lambda: shared_file(file))()
     model = load_model("human48")
-    recording = read(SHARED / file)
+    recording = read(path)
     auto, auto_map = map_recording(recording, "auto", model)
     given, _ = map_recording(recording, explicit, model)
     assert auto_map.source == load_map(explicit).source

@@ -44,6 +44,20 @@ def test_rmse_of_a_known_angular_velocity_error():
     assert torch.allclose(angular_velocity_rmse(w, w_hat), torch.full((2,), math.sqrt(9 / 3 / 4), dtype=torch.float64))
 
 
+def test_with_targets_missing_each_metric_is_the_mean_over_those_present_and_nan_only_where_none_is():
+    R = so3.random_rotation((3, 4), torch.Generator().manual_seed(3))
+    turned = R.clone()
+    turned[:, 1] = so3.exp(torch.tensor([0.0, math.pi / 3, 0.0], dtype=torch.float64)) @ R[:, 1]  # 1 - cos = 1/2
+    w, w_hat = torch.zeros(3, 4, 3, dtype=torch.float64), torch.zeros(3, 4, 3, dtype=torch.float64)
+    w_hat[:, 1, 0] = 3.0
+    present = torch.tensor([[True, True, True, True], [False, True, False, True], [False] * 4])
+    turned[~present], w[~present] = torch.nan, torch.nan  # what a missing target holds
+    m, r = mnte(turned, R, present), angular_velocity_rmse(w, w_hat, present)
+    assert torch.allclose(m[:2], torch.tensor([0.5 / 4, 0.5 / 2], dtype=torch.float64))  # over 4, then 2 targets
+    assert torch.allclose(r[:2], torch.tensor([math.sqrt(3 / 4), math.sqrt(3 / 2)], dtype=torch.float64))
+    assert torch.isnan(m[2]) and torch.isnan(r[2])  # no target at all
+
+
 def test_summary_discards_the_transient():
     t = torch.arange(400, dtype=torch.float64) / 100
     v = torch.where(t < 2, 100.0, 1.0)

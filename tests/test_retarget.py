@@ -2,11 +2,10 @@
 mapped human link orientations as closely as the best instantaneous fit; resampling is exact for
 uniform motion; the command writes what a position controller needs."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
+from conftest import shared_file
 
 from torchik.cli import main
 from torchik.io import Recording, save_recording
@@ -18,7 +17,6 @@ from torchik.method.state import State
 from torchik.pipelines.retarget import human_to_icub, resample, retarget
 from torchik.synthetic.scenarios import scenario
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 # iCub is not a person: its links can follow the mapped human ones only so far. On the walk below the
 # best fit within the limits (whole-body IK, every frame) leaves an MNTE of about 9e-3 (some 8 degrees
 # per link); the retargeted motion must stay within 10% of that fit at every frame after the first
@@ -108,10 +106,12 @@ def test_bad_input_is_refused_with_exit_code_2(tmp_path, walk, capsys, extra, me
     assert message in capsys.readouterr().err and not (tmp_path / "icub.npz").exists()
 
 
-@pytest.mark.skipif(not (DATA / "mvnx" / "test_mocap.mvnx").is_file(), reason="../shared/data absent")
-def test_a_real_xsens_recording_retargets_within_the_limits(tmp_path):
+@pytest.mark.parametrize("source", ["written", "shared"])
+def test_an_xsens_recording_retargets_within_the_limits(tmp_path, source, request):
+    """The MVN export the tests write (conftest's mvn_export) and the real one of ../shared/data."""
+    path = request.getfixturevalue("mvn_export").path if source == "written" else shared_file("mvnx/test_mocap.mvnx")
     out = tmp_path / "icub.npz"
-    assert main(["retarget", str(DATA / "mvnx" / "test_mocap.mvnx"), "--to", "icub", "--out", str(out), "--quiet"]) == 0
+    assert main(["retarget", str(path), "--to", "icub", "--out", str(out), "--quiet"]) == 0
     data = np.load(out)
     icub = load_model("icub")
     s = torch.from_numpy(data["joint_positions"])

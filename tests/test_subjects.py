@@ -5,10 +5,10 @@ the bone offsets; a converted .npz builds the same subject; track, models take i
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import shared_file
 
 from torchik.cli import main
 from torchik.io import load_recording, read, save_recording
@@ -16,8 +16,19 @@ from torchik.io.maps import load_map
 from torchik.io.subjects import LENGTH_CHILD, subject_from_recording
 from torchik.method.models.human import TEMPLATE
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
-needs_shared = pytest.mark.skipif(not (SHARED / "mvnx" / "test_mocap.mvnx").is_file(), reason="../shared/data absent")
+
+def mvnx_file(request, source: str):
+    """The MVN export the tests write (conftest's mvn_export), or the real one of ../shared/data."""
+    return request.getfixturevalue("mvn_export").path if source == "written" else shared_file("mvnx/test_mocap.mvnx")
+
+
+def plug_in_gait(request, source: str):
+    """(static trial, walk): the Plug-in Gait session the tests write (conftest's pig_session: a 1.45 m,
+    32.1 kg subject, as HC002 is) or the real HC002 one of ../shared/data."""
+    if source == "written":
+        session = request.getfixturevalue("pig_session")
+        return session.static, session.walk
+    return shared_file("c3d/HC002D02.c3d"), shared_file("c3d/HC002D25.c3d")
 
 
 @pytest.fixture(autouse=True)
@@ -25,14 +36,14 @@ def _no_allocator_tuning(monkeypatch):
     monkeypatch.setattr("torchik.pipelines.memory.keep_freed_memory", lambda: True)
 
 
-@needs_shared
+@pytest.mark.parametrize("source", ["written", "shared"])
 @pytest.mark.parametrize("dof", [48, 66])
-def test_the_mvnx_model_places_every_joint_at_the_files_pos_b_points(tmp_path, dof):
+def test_the_mvnx_model_places_every_joint_at_the_files_pos_b_points(tmp_path, dof, source, request):
     pinocchio = pytest.importorskip("pinocchio")
-    assert main(["models", "--from", str(SHARED / "mvnx" / "test_mocap.mvnx"), "--model", f"human{dof}",
-                 "--write", str(tmp_path)]) == 0
+    path = mvnx_file(request, source)
+    assert main(["models", "--from", str(path), "--model", f"human{dof}", "--write", str(tmp_path)]) == 0
     model = pinocchio.buildModelFromUrdf(str(tmp_path / f"human{dof}.urdf"))
-    points = read(SHARED / "mvnx" / "test_mocap.mvnx").meta["skeleton"]["points"]
+    points = read(path).meta["skeleton"]["points"]
     checked = 0
     for segment in TEMPLATE[1:]:
         label = next(lb for lb in points[segment.name] if lb.startswith("j") and lb in points[segment.parent])
@@ -53,17 +64,25 @@ def by_name(name: str):
     return next(s for s in TEMPLATE if s.name == name)
 
 
-@needs_shared
-@pytest.mark.parametrize("file,map_name", [("cmu_131_01.bvh", "cmu_to_human"),
+@pytest.fixture(scope="module")
+def humanik_bvh(tmp_path_factory, mvn_export):
+    """human66's walk (conftest's mvn_export) written as a HumanIK BVH."""
+    from torchik.synthetic.skeletons import write_scenario_bvh
+
+    return write_scenario_bvh(tmp_path_factory.mktemp("bvh") / "walk.bvh", mvn_export.walking, mvn_export.model)
+
+
+@pytest.mark.parametrize("file,map_name", [("written HumanIK", "humanik_to_human"), ("cmu_131_01.bvh", "cmu_to_human"),
                                            ("bandai_walk_normal_001.bvh", "bandai_to_human")])
-def test_bvh_segment_lengths_are_the_bone_offsets_norms(file, map_name):
-    recording = read(SHARED / "bvh" / file)
+def test_bvh_segment_lengths_are_the_bone_offsets_norms(file, map_name, request):
+    path = request.getfixturevalue("humanik_bvh") if file.startswith("written") else shared_file(f"bvh/{file}")
+    recording = read(path)
     built = subject_from_recording(recording)
     assert built.link_map == load_map(map_name).name
     skeleton, scale = recording.meta["skeleton"], recording.meta["metres_per_unit"]
     sources = {e.link: e.segment for e in load_map(map_name).entries}
     raw = {}  # the file's OFFSET lines, in its own units
-    text = (SHARED / "bvh" / file).read_text().split()
+    text = path.read_text().split()
     for i, word in enumerate(text[:-4]):
         if word in ("ROOT", "JOINT") and text[i + 3] == "OFFSET":
             raw[text[i + 1]] = np.array([float(v) for v in text[i + 4:i + 7]])
@@ -77,9 +96,9 @@ def test_bvh_segment_lengths_are_the_bone_offsets_norms(file, map_name):
     assert {"RightUpperLeg", "RightLowerLeg", "LeftUpperArm", "LeftForeArm"} <= set(built.from_file)
 
 
-@needs_shared
-def test_a_converted_npz_builds_the_same_subject(tmp_path):
-    recording = read(SHARED / "c3d" / "HC002D02.c3d")
+@pytest.mark.parametrize("source", ["written", "shared"])
+def test_a_converted_npz_builds_the_same_subject(tmp_path, source, request):
+    recording = read(plug_in_gait(request, source)[0])
     save_recording(recording, tmp_path / "static.npz")
     a, b = subject_from_recording(recording), subject_from_recording(load_recording(tmp_path / "static.npz"))
     assert a.subject == b.subject and a.from_file == b.from_file
@@ -87,25 +106,25 @@ def test_a_converted_npz_builds_the_same_subject(tmp_path):
     assert {"RightUpperLeg", "RightLowerLeg", "RightFoot", "RightUpperArm", "RightForeArm"} <= set(a.from_file)
 
 
-@needs_shared
-def test_track_with_the_subject_from_the_static_trial(tmp_path, capsys):
-    c3d = SHARED / "c3d"
-    assert main(["track", "--input", str(c3d / "HC002D25.c3d"), "--calibration", str(c3d / "HC002D02.c3d"),
-                 "--subject-from", str(c3d / "HC002D02.c3d"), "--model", "human48"]) == 0
+@pytest.mark.parametrize("source", ["written", "shared"])
+def test_track_with_the_subject_from_the_static_trial(tmp_path, capsys, source, request):
+    static, walk = plug_in_gait(request, source)
+    assert main(["track", "--input", str(walk), "--calibration", str(static), "--subject-from", str(static),
+                 "--model", "human48"]) == 0
     out = capsys.readouterr().out
     assert "subject from" in out and "height 1.450 m (the file)" in out and "through map 'plug-in gait to human'" in out
 
 
-@needs_shared
-def test_a_cohort_manifests_subject_from_column_builds_the_measured_subject(tmp_path):
+@pytest.mark.parametrize("source", ["written", "shared"])
+def test_a_cohort_manifests_subject_from_column_builds_the_measured_subject(tmp_path, source, request):
     from torchik.pipelines.cohort.manifest import ManifestError, read_manifest
 
-    static = SHARED / "c3d" / "HC002D02.c3d"
+    static, walk = plug_in_gait(request, source)
     (tmp_path / "m.csv").write_text(f"trial,subject,recording,model,subject_from\n"
-                                    f"t1,s1,{SHARED / 'c3d' / 'HC002D25.c3d'},human48,{static}\n")
+                                    f"t1,s1,{walk},human48,{static}\n")
     (spec,) = read_manifest(tmp_path / "m.csv")
     assert spec.subject_model == subject_from_recording(read(static)).subject
     (tmp_path / "bad.csv").write_text(f"trial,subject,recording,model,subject_from\n"
-                                      f"t1,s1,{SHARED / 'c3d' / 'HC002D25.c3d'},icub,{static}\n")
+                                      f"t1,s1,{walk},icub,{static}\n")
     with pytest.raises(ManifestError, match="generate a human model"):
         read_manifest(tmp_path / "bad.csv")

@@ -67,6 +67,22 @@ def test_absurd_finite_samples_are_dropped_as_missing_and_counted(cli, tmp_path,
     assert np.abs(trajectory["base_position"]).max() < 10.0  # not followed to 1e296 m
 
 
+def test_the_per_step_metrics_are_over_the_targets_present_and_nan_only_where_none_is(cli, tmp_path, walk):
+    """Ten absurd samples of one link's angular velocity, dropped: the estimate's per-step MNTE and
+    RMSE at those steps are the other 22 targets' (finite, at the run's level). Three frames with no
+    orientation target at all are the only NaN ones, and the report counts them."""
+    w, R = walk.angular_velocity.copy(), walk.orientation.copy()
+    w[100:110, 3] = 1e300
+    R[200:203] = np.nan  # every link missing (the base position is still there)
+    code, err, report, trajectory = tracked(cli, tmp_path, dataclasses.replace(walk, angular_velocity=w, orientation=R))
+    assert code == 0, err
+    assert_finite(trajectory)
+    for name in ("mnte", "rmse"):
+        assert np.isnan(trajectory[name]).ravel().nonzero()[0].tolist() == [200, 201, 202], name
+    assert trajectory["mnte"][100:110].max() < 1e-6 and trajectory["rmse"][100:110].max() < 1e-2
+    assert report["steps_without_targets"] == 3 and report["implausible_samples"] == 10
+
+
 def test_steps_failed_beyond_max_failed_exit_1_and_leave_existing_outputs(cli, tmp_path, walk):
     values = walk.angular_velocity.copy()
     values[100:110, 3] = 1e300  # let through by the bound below: the tracker's invariant catches it

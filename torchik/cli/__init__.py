@@ -73,8 +73,8 @@ def main(argv: list[str] | None = None) -> int:
 def command() -> None:
     """The `torchik` console command (and `python -m torchik`): `main`, then the process ends without
     the interpreter's teardown when nothing else runs. Unloading torch and freeing what its modules
-    hold takes about half a second on this project's machine (0.45-0.5 s measured after `import torch`
-    alone, against 0.02 s for `os._exit`), after every output is written and closed. The exit
+    hold takes far longer than `os._exit` (the timing: experiments/speed_history.md), after every
+    output is written and closed. The exit
     handlers (multiprocessing's, rerun's, logging's) still run and the standard streams are flushed;
     with another thread still alive the usual exit waits for it."""
     code = main()

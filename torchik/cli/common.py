@@ -98,6 +98,14 @@ def positive(text: str) -> float:
     return value
 
 
+def non_negative(text: str) -> float:
+    """argparse type of a finite number from zero up (a duration that may be none)."""
+    value = float(text)
+    if not 0.0 <= value < math.inf:  # False for NaN
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a finite number from 0 up")
+    return value
+
+
 def more_than_one(text: str) -> float:
     """argparse type of a count of frame intervals that must exceed one (a gap of one interval is no gap)."""
     value = positive(text)
@@ -115,7 +123,7 @@ def fraction(text: str) -> float:
 
 
 # what argparse names in "invalid float value: 'fast'"
-positive.__name__ = more_than_one.__name__ = fraction.__name__ = "float"
+positive.__name__ = non_negative.__name__ = more_than_one.__name__ = fraction.__name__ = "float"
 
 
 def torch_device(text: str):

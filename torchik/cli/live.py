@@ -52,9 +52,10 @@ def add_parser(subparsers) -> None:
                    help=f"K for positions and orientations, 1/s (default {TrackerSettings.position_gain:g})")
     p.add_argument("--backend", default=TrackerSettings.backend, choices=("auto", *BACKENDS))
     p.add_argument("--compile", action="store_true", help="replay the batch's usual step compiled: several "
-                   "times faster per step (one character, or many: from 32 on the joints' tree), after a capture at "
-                   "the third step of each batch size (seconds; one to two minutes the first time on a machine; the "
-                   "samples meanwhile are skipped, and counted)")
+                   "times faster per step (one character, or many: from 32 on the joints' tree), after a capture "
+                   "(seconds; one to two minutes the first time on a machine) made before listening where the "
+                   "stream's rate is known (--rate, LSL) for one and --characters characters, else at the third step "
+                   "of each batch size (the samples meanwhile are skipped, and counted)")
     p.add_argument("--device", default="cpu", help="torch device: cpu (default), cuda or cuda:N")
     p.add_argument("--retarget", choices=("icub",), help="also track iCub from the stream (human_to_icub map) and "
                    "publish and write iCub's joints instead of the human model's")
@@ -79,6 +80,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("--receiver", choices=("process", "thread"), default="process",
                    help="receive a udp:// stream in a process of its own (default: the tracker then never waits for "
                         "the receiver's Python) or in a thread of the tracker's")
+    p.add_argument("--characters", type=int, default=1, metavar="N", help="characters the stream is expected to "
+                   "bring (default 1): before saying it is listening, the tracker is warmed up for that batch")
     p.add_argument("--stall", type=float, default=1.0, metavar="S", help="a character silent for S seconds leaves "
                    "the batch until it comes back (default 1)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: Ctrl-C)")
@@ -108,14 +111,16 @@ def run(args: argparse.Namespace) -> int:
     links = link_map.links if link_map is not None else TRACKED_LINKS[args.model]
     publisher, viewer, retarget = _outputs(args, model, links, source.rate)
     options = LiveOptions(backlog=args.backlog, stall_s=args.stall, duration_s=args.duration,
-                          stop_when_idle_s=args.stop_when_idle, keep_states=bool(args.out))
+                          stop_when_idle_s=args.stop_when_idle, keep_states=bool(args.out), characters=args.characters)
     settings = TrackerSettings(position_gain=args.gain, orientation_gain=args.gain, backend=args.backend,
                                compile=args.compile)
-    if not args.quiet:
-        print(f"listening on {args.source} (Ctrl-C stops)", file=sys.stderr)
+
+    def ready() -> None:  # once the tracker is warmed up and the receiver reads: no sample waits for them
+        print(f"listening on {args.source} (Ctrl-C stops)", file=sys.stderr, flush=True)
+
     result = track_live(source, model, lambda names: Selection.build(names, TRACKED_LINKS[args.model], link_map),
                         settings, options, publisher, progress=None if args.quiet else _progress, viewer=viewer,
-                        retarget=retarget)
+                        retarget=retarget, links=links, on_ready=None if args.quiet else ready)
     if not args.quiet:
         print(file=sys.stderr)
     report = dict(result.report(), source_url=args.source, model=model.name)
@@ -137,6 +142,8 @@ def _check(args: argparse.Namespace) -> None:
     check_outputs([args.report, args.out, args.rrd], args.force)
     if args.backlog is not None and args.backlog < 1:
         raise InputError(f"--backlog {args.backlog}: at least 1")
+    if args.characters < 1:
+        raise InputError(f"--characters {args.characters}: at least 1")
     if args.rate is not None and not args.rate > 0:
         raise InputError(f"--rate {args.rate}: must be positive")
     if args.viewer not in (None, "spawn"):

@@ -19,6 +19,7 @@ from ..io.plausible import Plausibility
 from ..method.models import MODELS
 from ..method.qp import BACKENDS
 from ..method.settings import SCHEMES, TrackerSettings
+from ..pipelines.track import SETTLE
 from ..synthetic.scenarios import SCENARIOS
 from .common import (
     Terminated,
@@ -29,6 +30,7 @@ from .common import (
     fraction,
     model_urdf,
     more_than_one,
+    non_negative,
     positive,
     subject_from,
     torch_device,
@@ -85,6 +87,9 @@ def add_parser(subparsers) -> None:
                        help="replay the usual step compiled: several times faster per step, one subject or a batch, "
                             "after a capture of seconds (one to two minutes the first time on a machine): for long "
                             "recordings and large batches")
+    track.add_argument("--settle", type=non_negative, default=SETTLE, metavar="SECONDS",
+                       help="start at rest in the first frame's posture, the tracker held this long on its targets "
+                            f"(default {SETTLE:g}; 0: from the zero posture, the first tenths of a second a transient)")
     track.add_argument("--max-gap", type=more_than_one, default=TrackerSettings.max_gap, metavar="STEPS",
                        help="a gap in time longer than this many frame intervals starts a new segment: the tracker "
                             f"restarts from the targets after it (default {TrackerSettings.max_gap:g})")
@@ -127,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
         # one subject's tensors are too small for torch to split, and on a busy machine its idle
         # threads spin and wait for each other: a step then takes several times longer
         torch.set_num_threads(1)
-    model, subject, recording, links, source = _load(args, device)
+    model, subject, recording, links, source, left_out = _load(args, device)
     settings = TrackerSettings(position_gain=args.gain if args.position_gain is None else args.position_gain,
                                orientation_gain=args.gain if args.orientation_gain is None else args.orientation_gain,
                                scheme=args.scheme, backend=args.backend, max_gap=args.max_gap, compile=args.compile)
@@ -141,9 +146,9 @@ def run(args: argparse.Namespace) -> int:
     with _outputs(args, model, subject, links, position_links) as outputs:  # written as the run goes
         summary, implausible, interrupted = track_chunks(model, recording, links, settings, outputs.values(),
                                                          progress=not args.quiet, position_links=position_links,
-                                                         plausibility=bounds)
+                                                         plausibility=bounds, settle=args.settle)
         report = summary.report(settings, implausible, interrupted)
-        report.update(source=source, device=str(device), wall_time_s=time.perf_counter() - start)
+        report.update(source=source, left_to_model=left_out, device=str(device), wall_time_s=time.perf_counter() - start)
         if not args.quiet:  # beside a report on standard output, on standard error
             _print_report(report, source, model.name or Path(model.source).stem,
                           sys.stderr if args.report == "-" else sys.stdout)
@@ -180,11 +185,12 @@ def _outputs(args: argparse.Namespace, model, subject, links, position_links):
 def _load(args: argparse.Namespace, device):
     """The model (with the subject built from --subject-from, if given), the recording in its links
     (a .npz file read as its frames are needed; another format, or one mapped or calibrated, read
-    whole; or a scenario), the tracked links and a phrase naming the source."""
-    from ..io import map_recording, open_recording, read
+    whole; or a scenario), the tracked links, a phrase naming the source, and the links the map
+    found no segment for (left to the model: no target pulls them)."""
+    from ..io import Recording, RecordingFile, map_recording, open_recording, read
     from ..io.maps import default_map
     from ..method.models import TRACKED_LINKS, load_model
-    from ..synthetic.scenarios import scenario
+    from ..synthetic.scenarios import ScenarioSource
 
     if args.subject_from and (args.urdf or args.model == "icub"):
         raise InputError("--subject-from builds a human model: give it with --model human66 or human48, without --urdf")
@@ -195,7 +201,8 @@ def _load(args: argparse.Namespace, device):
         model = load_urdf_model(args.urdf, args.model, device)
     else:
         model = load_model(args.model, subject, device=device)
-    links = TRACKED_LINKS[args.model]
+    links, left_out = TRACKED_LINKS[args.model], []
+    recording: Recording | RecordingFile | ScenarioSource  # a file read, or a scenario made, as it is tracked
     if args.input:
         recording = open_recording(args.input)
         source = args.input
@@ -204,19 +211,21 @@ def _load(args: argparse.Namespace, device):
             static = read(args.calibration) if args.calibration else None
             recording, link_map = map_recording(_whole(recording), map_name, model, static, args.calibration_frame)
             links = recording.links
+            left_out = list(recording.meta["link_map"]["left_out"])
             source += f" through map {link_map.name!r}"
     elif args.map or args.calibration:
         raise InputError("--map and --calibration apply to --input recordings; the scenarios are in the model's links")
     else:
-        recording = scenario(args.scenario, model.to(device="cpu"), links, duration=args.duration, rate=args.rate,
-                             seed=args.seed)
+        # made a chunk at a time as it is tracked, as a file is read: an hour takes a chunk's memory
+        recording = ScenarioSource(args.scenario, model.to(device="cpu"), links, duration=args.duration,
+                                   rate=args.rate, seed=args.seed)
         source = f"scenario {args.scenario} ({args.duration:g} s at {args.rate:g} Hz)"
     if args.sensor_calibration:  # the sensor effects a diagnosis found, undone
         from ..pipelines.diagnosis.calibration import apply_calibration_file
 
         recording = apply_calibration_file(_whole(recording), args.sensor_calibration)
         source += f" with sensor calibration {args.sensor_calibration}"
-    return model, subject, recording, links, source
+    return model, subject, recording, links, source, left_out
 
 
 def _whole(recording):
@@ -256,15 +265,32 @@ def _print_report(report: dict, source: str, model_name: str, file=sys.stdout) -
     print = functools.partial(builtins.print, file=file)  # noqa: A001
     print(f"tracked {source} with {model_name}: {report['frames']} frames in {report['wall_time_s']:.1f} s")
     if m:
-        print(f"    MNTE after {report['transient_s']:.0f} s: median {m['median']:.2e}, p99 {m['p99']:.2e}")
-        print(f"    angular velocity RMSE: median {r['median']:.2e} rad/s, p99 {r['p99']:.2e} rad/s")
+        print(f"    MNTE {_window(report)}: median {m['median']:.2e}, p99 {m['p99']:.2e}")
+        if r:
+            print(f"    angular velocity RMSE: median {r['median']:.2e} rad/s, p99 {r['p99']:.2e} rad/s")
     if "joint_error_rad" in report:
         print(f"    joint error against ground truth: max {report['joint_error_rad']['max']:.2e} rad")
     print(f"    step time: median {st['median']:.2f} ms, p99 {st['p99']:.2f} ms; "
           f"QP fallbacks {report['qp_fallbacks']}, dropped targets {report['dropped_targets']} "
           f"(implausible samples {report['implausible_samples']}), projected {report['projected_targets']}")
+    if report["steps_without_targets"]:
+        print(f"    {report['steps_without_targets']} steps without any target: their MNTE and RMSE are NaN")
+    if report["left_to_model"]:
+        print(f"    left to the model (no segment in the recording): {', '.join(report['left_to_model'])}")
     if report["failed_steps"] or len(report["segments"]) > 1:
         print(f"    failed steps {report['failed_steps']} (restarted); segments (s): "
               + ", ".join(f"{a:.2f}-{b:.2f}" for a, b in report["segments"]))
     if m is None:
-        builtins.print("    no frame has all its targets known: nothing was measured", file=sys.stderr)
+        builtins.print("    no step has any target: nothing was measured", file=sys.stderr)
+
+
+def _window(report: dict) -> str:
+    """The time the report's statistics cover, in words: never a window the recording does not have."""
+    if report["statistics_from_s"]:
+        return f"after {report['statistics_from_s']:g} s"
+    whole, transient = f"over the whole {report['duration_s']:.2f} s", report["transient_s"]
+    start = "settled on the first frame" if report["settled_s"] else "from the zero posture"
+    if not transient:
+        return whole
+    why = "shorter than" if report["duration_s"] < transient else "no target after"
+    return f"{whole} ({why} the {transient:g} s transient; tracking started {start})"

@@ -12,7 +12,10 @@ R_link = R_segment C, given as one of
   `base_forward_axis` (as the IMU placers of Xsens MVN and OpenSense do from a static pose).
 
 Angular velocities are world-frame and unchanged by a constant offset; the base position is the
-base segment's. The mapped recording says in meta["link_map"] which map and which frame it used.
+base segment's. A link whose segments the recording lacks (a clinical lower-body marker set has no
+trunk, head or arms) is left out of the mapped recording, to the model: no target pulls it. Only
+the base's segment is needed. The mapped recording says in meta["link_map"] which map and which
+frame it used, and which links it left out.
 """
 
 from __future__ import annotations
@@ -38,7 +41,6 @@ class LinkEntry:
     segment: str  # the source segment (the first of `alternatives` until resolved against a recording)
     offset: np.ndarray | None  # C [3,3], or None when it is to be calibrated
     alternatives: tuple[str, ...] = ()  # segments that can stand for the link, in order of preference
-    optional: bool = False  # a recording without any of them leaves the link out instead of failing
 
 
 @dataclass(frozen=True)
@@ -55,7 +57,7 @@ class LinkMap:
     source: str
     calibration: dict | None = None  # where the calibrated offsets came from
     calibration_frame: int | str = 0  # the default reference frame: an index, or "rest" (a BVH's rest pose)
-    left_out: tuple[str, ...] = ()  # optional links the recording it was resolved against has no segment for
+    left_out: tuple[str, ...] = ()  # links the recording it was resolved against has no segment for
 
     @property
     def links(self) -> tuple[str, ...]:
@@ -117,7 +119,8 @@ def load_map(name_or_path: str | Path) -> LinkMap:
         alternatives = item["source"] if isinstance(item["source"], list) else [item["source"]]
         if not alternatives or not all(isinstance(a, str) for a in alternatives):
             raise RecordingError(f"{where}: 'source' must be a segment name or a list of them")
-        entries.append(LinkEntry(link, alternatives[0], offset, tuple(alternatives), bool(item.get("optional", False))))
+        # `optional = true`, which older maps give, is what every link is now: left out when no segment is there
+        entries.append(LinkEntry(link, alternatives[0], offset, tuple(alternatives)))
     base = spec["base"]
     if base.get("link") not in spec["links"]:
         raise RecordingError(f"{path}: base.link {base.get('link')!r} is not one of the mapped links")
@@ -146,22 +149,28 @@ def _find(alternatives: tuple[str, ...], names: tuple[str, ...]) -> str | None:
     return None
 
 
+def _base_source(link_map: LinkMap, names: tuple[str, ...]) -> str | None:
+    """The recording's segment for the map's base link (None when it has none)."""
+    base = next(e for e in link_map.entries if e.link == link_map.base_link)
+    return _find(base.alternatives or (base.segment,), names)
+
+
 def missing_segments(link_map: LinkMap, names) -> list[str]:
-    """The segments (one name per required link: its first alternative) that recordings with these
-    segment names lack for this map."""
+    """The segments (one name per link: its first alternative) that recordings with these segment
+    names lack for this map: their links are left to the model."""
     names = tuple(names)
-    return [e.segment for e in link_map.entries
-            if not e.optional and _find(e.alternatives or (e.segment,), names) is None]
+    return [e.segment for e in link_map.entries if _find(e.alternatives or (e.segment,), names) is None]
 
 
 def resolve(link_map: LinkMap, names) -> LinkMap:
     """The map against a recording's segment names: each link's source the recording's own name for
-    it (alternatives and namespaces resolved), optional links it has no segment for left out.
-    RecordingError naming the segments it lacks for required links."""
+    it (alternatives and namespaces resolved), the links it has no segment for left out (in
+    `left_out`). RecordingError when it lacks the base's segment: there would be nothing to track."""
     names = tuple(names)
-    missing = missing_segments(link_map, names)
-    if missing:
-        raise RecordingError(f"map {link_map.name!r} needs segments {missing} that the recording lacks; "
+    base_segment = _base_source(link_map, names)
+    if base_segment is None:
+        raise RecordingError(f"map {link_map.name!r} needs segment {link_map.base_segment!r}, its base link "
+                             f"{link_map.base_link!r}, that the recording lacks: nothing to track without it; "
                              f"it has {list(names)}")
     entries, left_out = [], list(link_map.left_out)
     for e in link_map.entries:
@@ -170,11 +179,7 @@ def resolve(link_map: LinkMap, names) -> LinkMap:
             left_out.append(e.link)
         else:
             entries.append(replace(e, segment=found, alternatives=(found,)))
-    base = next((e for e in entries if e.link == link_map.base_link), None)
-    if base is None:
-        raise RecordingError(f"map {link_map.name!r}: its base link {link_map.base_link!r} is optional and the "
-                             f"recording has no segment for it")
-    return replace(link_map, entries=tuple(entries), base_segment=base.segment, left_out=tuple(left_out))
+    return replace(link_map, entries=tuple(entries), base_segment=base_segment, left_out=tuple(left_out))
 
 
 def model_family(model: KinematicModel) -> str:
@@ -190,22 +195,24 @@ def default_map(names, model: KinematicModel) -> str | None:
 
 def choose_map(names, family: str = "human") -> str:
     """The built-in map (its name) for a recording with these segment names, into models of `family`:
-    of the maps whose required segments the recording has, the one mapping the most links.
-    RecordingError naming the closest map and the segments it misses when none fits."""
+    of the maps whose base segment the recording has, the one mapping the most links (the links it
+    lacks are left to the model). RecordingError naming the closest map and the segments it misses
+    when the recording has no built-in map's base."""
     names = tuple(names)
     candidates = []
     for name in built_in_maps():
         link_map = load_map(name)
         if link_map.model == family:
             missing = missing_segments(link_map, names)
-            mapped = sum(_find(e.alternatives or (e.segment,), names) is not None for e in link_map.entries)
-            candidates.append((len(missing), -mapped, name, missing))
+            mapped = len(link_map.entries) - len(missing)
+            candidates.append((_base_source(link_map, names) is None, -mapped, name, link_map.base_segment, missing))
     if not candidates:
         raise RecordingError(f"no built-in map into {family} models")
-    n_missing, _, best, missing = min(candidates)
-    if n_missing:
+    no_base, _, best, base, missing = min(candidates)
+    if no_base:
         raise RecordingError(f"no built-in map fits the recording's segments {list(names)}; the closest, {best!r}, "
-                             f"misses {missing}: give --map FILE.toml (see models/maps/ for the format)")
+                             f"misses its base segment {base!r} and {len(missing) - 1} more: give --map FILE.toml "
+                             f"(see models/maps/ for the format)")
     return best
 
 

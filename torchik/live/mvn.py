@@ -394,7 +394,7 @@ def rotations(quaternion: np.ndarray) -> np.ndarray:
     """Rotation matrices [...,3,3] of the quaternions [...,4] (w, x, y, z) a stream carried, each
     normalised (float32 leaves them 1e-7 off unit length); NaN where a quaternion is. One product
     with a constant matrix (`_quadratic_form`): this runs for every live sample, where torch's two
-    dozen small operations took some 0.3 ms at one character (this some 0.02 ms)."""
+    dozen small operations took over ten times as long (experiments/live_latency.md)."""
     q = np.asarray(quaternion, dtype=np.float64)
     outer = (q[..., :, None] * q[..., None, :]).reshape(q.shape[:-1] + (16,))
     return ((outer @ _QUADRATIC_FORM) / (q * q).sum(axis=-1, keepdims=True)).reshape(q.shape[:-1] + (3, 3))

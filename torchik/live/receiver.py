@@ -11,7 +11,9 @@ tracker asks for samples with a credit: the receiver sends what it holds, all ch
 message of stacked arrays, when the tracker has a credit, and the tracker gives the next credit as
 it takes a message. So at most one message is in flight, and what waits while the tracker steps
 is only ever the newest few. Each message carries the source's counters, and the last one, at the
-end, their final values and the receiver's CPU time.
+end, their final values and the receiver's CPU time. The first, before any samples, says that the
+receiver reads the socket (`wait_ready`): what comes before it waits in the socket's buffer and
+reaches the tracker at once, a burst it would step over.
 
 Ctrl-C is the tracker's: the receiver ignores SIGINT and ends when the tracker closes the source,
 or when the tracker's end of the pipe closes (the tracker died): no receiver outlives its tracker.
@@ -37,7 +39,7 @@ from .sample import BACKLOG, Sample, SourceStats, Url, keep_newest
 PIPE_BYTES = 1 << 20  # a message of 64 characters' samples is some 150 kB: one fits without blocking
 STOP = "stop"
 # up to this many samples a message carries them as Samples: pickled as they are they cross the
-# pipe faster (one sample 0.07 ms there and back, against 0.19 ms as arrays); from 4 the arrays do
+# pipe faster than as arrays (experiments/live_latency.md); from 4 the arrays do
 FEW = 3
 
 
@@ -69,7 +71,15 @@ class ReceiverProcess:
         self.skipped: dict[int, int] = {}
         self._skipped_now: dict[int, int] = {}  # what the last message adds to `skipped`
         self.finished = False
+        self.ready = False  # the receiver reads the socket (its first message said so)
         self.serving_cpu_s: float | None = None  # the receiver's CPU seconds from its first datagram to its end
+
+    def wait_ready(self, timeout: float) -> bool:
+        """Wait up to `timeout` for the receiver to be reading the socket (its process starts in
+        seconds); True once it is. Its first message says so, before any samples: none is taken here."""
+        if not self.ready and not self.finished and self._messages.poll(timeout):
+            self._take()
+        return self.ready
 
     def deliver(self, mailbox, timeout: float) -> bool:
         """Wait up to `timeout` for the receiver's next message and put its samples into `mailbox`
@@ -94,6 +104,9 @@ class ReceiverProcess:
         except EOFError:  # the receiver died: what it had counted so far stays
             kind, rate, stats, skipped, packed = "end", self.rate, dataclasses.astuple(self.stats), {}, []
         self.rate, self.stats = rate, SourceStats(*stats)
+        if kind == "ready":  # the receiver's first message: no samples, no credit taken
+            self.ready = True
+            return []
         self._skipped_now = skipped
         for character, count in skipped.items():
             self.skipped[character] = self.skipped.get(character, 0) + count
@@ -113,7 +126,8 @@ class ReceiverProcess:
         if self.process.is_alive():
             try:
                 self._credits.send(STOP)
-                while not self.finished and self._messages.poll(2.0):
+                # a receiver still starting (seconds on a loaded machine) reads the STOP once it runs
+                while not self.finished and self._messages.poll(2.0 if self.ready else 20.0):
                     self._take()
             except (BrokenPipeError, EOFError, OSError):
                 pass
@@ -149,6 +163,7 @@ def _serve(url: Url, rate: float | None, position_scale: float, backlog: int, bo
     for connection in (credits, source.socket):
         poller.register(connection.fileno(), select.POLLIN)
     try:
+        messages.send(("ready", source.rate, dataclasses.astuple(source.stats), {}, []))
         while running:
             ready = {fd for fd, _ in poller.poll(1000)}
             if credits.fileno() in ready:

@@ -20,7 +20,8 @@ from ..errors import InputError
 
 MVN_PORT = 9763  # MVN's default streaming port
 # samples a live loop catches up per character, 33 ms at 240 Hz: a loop further behind steps to the
-# newest (on a loaded machine, catching up 32 kept it some 130 ms behind for seconds at a time)
+# newest (on a loaded machine, catching up 32 kept it behind for seconds at a time:
+# experiments/live_latency.md)
 BACKLOG = 8
 
 

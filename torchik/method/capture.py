@@ -65,8 +65,8 @@ def capture(fn: Callable[..., Sequence[torch.Tensor]], inputs: Sequence[torch.Te
             finally:
                 _tracing = False
             # on CPU the C++ wrapper calls the kernels without Python between them, and products and
-            # sums contract into fused multiply-adds (Human66 at B = 1024: 13.9 against 14.2 ms a step,
-            # six runs interleaved; the states move by 1e-13); on CUDA, Triton kernels launched one by
+            # sums contract into fused multiply-adds (a little faster: experiments/speed_history.md;
+            # the states move by 1e-13); on CUDA, Triton kernels launched one by
             # one: not a CUDA graph, whose outputs the next replay would overwrite while the tracker
             # still holds them (the state, two steps of targets)
             cpu = all(t.device.type == "cpu" for t in inputs)

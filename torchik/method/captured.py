@@ -27,10 +27,9 @@ Opt-in, not automatic: the first capture of a model's step on a machine compiles
 seconds (later ones load it from TorchInductor's cache in seconds), which pays off on long runs
 and live tracking, not in a test or a demo of a few hundred steps. From
 `BatchSetup.CAPTURED_TREE_FROM` subjects it solves on the joints' tree, each tree level's tensors
-made afresh rather than written into one buffer (`capture.tracing`): for Human66 on this
-project's 2-core CPU, 12-18 ms a step at B = 1024 against the eager 28-41 ms (12-13 ms since the
-kinematics' sines and the joint axes are laid out along the batch while traced), and 3.6 against
-14.4 ms at B = 128. It is made at the first settled
+made afresh rather than written into one buffer (`capture.tracing`): for Human66 on a CPU,
+several times faster than the eager step at B = 128 and 1024 (the figures: docs/speed.md; the
+runs: experiments/speed_history.md). It is made at the first settled
 step of a batch size and kept for the tracker's later runs of that size, with the model's tensors
 as they are then.
 """
@@ -184,7 +183,7 @@ class CapturedStep:
         tree = problem.tree
         # the tree's factorisation is returned only where coupled rows make the backend's turn
         # frequent and its first iteration able to use it (iCub): returned, it cannot share its
-        # memory with other intermediates (Human66 at B = 1024: 13.3 against 12.7 ms a step)
+        # memory with other intermediates, which slows Human66's step (experiments/speed_history.md)
         if tree is None:
             hessian: tuple = (problem.H,)
         elif batch.linear_rows is None:

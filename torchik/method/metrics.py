@@ -37,12 +37,24 @@ def orientation_error(R_target: torch.Tensor, R_estimate: torch.Tensor,
     return torch.where(one_plus_cos > 1.0, sin_squared / one_plus_cos, 2.0 - one_plus_cos)
 
 
-def mnte(R_target: torch.Tensor, R_estimate: torch.Tensor) -> torch.Tensor:
-    """Mean normalised trace error. R_target, R_estimate: [..., n_o, 3, 3] -> [...]."""
-    return orientation_error(R_target, R_estimate).mean(-1)
+def mnte(R_target: torch.Tensor, R_estimate: torch.Tensor, present: torch.Tensor | None = None) -> torch.Tensor:
+    """Mean normalised trace error. R_target, R_estimate: [..., n_o, 3, 3] -> [...]. present [..., n_o]
+    bool: the targets to average over (the others may hold anything, NaN included); NaN where none is."""
+    if present is None:
+        return orientation_error(R_target, R_estimate).mean(-1)
+    R_target = torch.where(present[..., None, None], R_target, R_estimate)  # no NaN into the sums
+    return _present_mean(orientation_error(R_target, R_estimate), present)
 
 
-def angular_velocity_rmse(omega_target: torch.Tensor, omega_estimate: torch.Tensor) -> torch.Tensor:
-    """RMS angular-velocity error. omega_*: [..., n_o, 3] -> [...] rad/s."""
-    return ((omega_target - omega_estimate).square().sum(-1) / 3.0).mean(-1).sqrt()
+def angular_velocity_rmse(omega_target: torch.Tensor, omega_estimate: torch.Tensor,
+                          present: torch.Tensor | None = None) -> torch.Tensor:
+    """RMS angular-velocity error. omega_*: [..., n_o, 3] -> [...] rad/s; present as `mnte`'s."""
+    if present is None:
+        return ((omega_target - omega_estimate).square().sum(-1) / 3.0).mean(-1).sqrt()
+    omega_target = torch.where(present[..., None], omega_target, omega_estimate)
+    return _present_mean((omega_target - omega_estimate).square().sum(-1) / 3.0, present).sqrt()
 
+
+def _present_mean(values: torch.Tensor, present: torch.Tensor) -> torch.Tensor:
+    """values [..., n] averaged over `present` [..., n]: 0/0, NaN, where none is."""
+    return torch.where(present, values, 0.0).sum(-1) / present.sum(-1)

@@ -32,10 +32,12 @@ class Tracker(Protocol):
 
 
 def run_parts(tracker: Tracker, parts: Iterable[TargetSequence], time: torch.Tensor, initial: State | None = None,
-              progress: bool | None = None, interruptible: bool = False) -> Generator[Trajectory, None, None]:
+              progress: bool | None = None, interruptible: bool = False,
+              settle: float = 0.0) -> Generator[Trajectory, None, None]:
     """Track the sequence whose time stamps are `time` [T], its targets given in consecutive `parts`
-    (their lengths adding up to T), from `initial` (default: `initial_state` of the first targets).
-    Yields each part's trajectory once its steps are done.
+    (their lengths adding up to T), from `initial` (default: `initial_state` of the first targets,
+    or with `settle` > 0 seconds, `settled_state` on them: at rest in their posture, without the
+    transient from the zero posture). Yields each part's trajectory once its steps are done.
 
     Steps at the nominal rate (to the rounding of the time stamps) take the nominal dt, others
     (jitter, gaps) their own. progress: a bar once the run has lasted a second (None: on runs of
@@ -45,6 +47,8 @@ def run_parts(tracker: Tracker, parts: Iterable[TargetSequence], time: torch.Ten
     T = len(time)
     if T == 0:
         raise InputError("the sequence is empty")
+    if initial is not None and settle > 0:
+        raise InputError("a run starts from `initial` or settles on its first targets, not both")
     if T > 1 and not bool((time[1:] > time[:-1]).all()):
         raise InputError("sequence.time must be strictly increasing")
     bar = None
@@ -55,7 +59,9 @@ def run_parts(tracker: Tracker, parts: Iterable[TargetSequence], time: torch.Ten
                 raise InputError(f"a part of {len(part)} samples after {done} of the {T} samples of `time`")
             if steps is None:  # the first part: where the run starts, and how many subjects
                 first = part[0]
-                tracker.reset(initial if initial is not None else tracker.initial_state(first), batch=first.batch)
+                if initial is None:
+                    initial = settled_state(tracker, first, settle) if settle > 0 else tracker.initial_state(first)
+                tracker.reset(initial, batch=first.batch)
                 steps = time_steps(tracker, time, first.batch)
                 if progress or (progress is None and T * first.batch > 20000):
                     from tqdm import tqdm
@@ -85,6 +91,22 @@ def run_parts(tracker: Tracker, parts: Iterable[TargetSequence], time: torch.Ten
     finally:
         if bar is not None:
             bar.close()
+
+
+def settled_state(tracker: Tracker, targets: Targets, seconds: float) -> State:
+    """The state [B] at rest in the posture of `targets` [B,...]: the tracker run from
+    `initial_state(targets)` for `seconds` (two steps at least, at its nominal dt) on these targets
+    held still (their velocities zero; missing ones stay missing), then its velocity zeroed. A run
+    started from it follows its first targets from its first step, where one started from the zero
+    posture spends its first tenths of a second converging: most of a trial of one or two seconds."""
+    n = max(2, round(seconds / tracker.dt))
+    held = lambda x: x[None].expand(n, *x.shape)  # noqa: E731
+    still = TargetSequence(tracker.dt * torch.arange(n, dtype=targets.position.dtype, device=targets.position.device),
+                           held(targets.position), torch.zeros_like(held(targets.linear_velocity)),
+                           held(targets.rotation), torch.zeros_like(held(targets.angular_velocity)))
+    run = next(iter(run_parts(tracker, [still], still.time)))
+    return State(run.base_position[-1], run.base_rotation[-1], run.joint_positions[-1],
+                 torch.zeros_like(run.velocity[-1]))
 
 
 def nominal_steps(time: torch.Tensor, dt: float, dtype: torch.dtype | None = None) -> torch.Tensor:

@@ -76,14 +76,13 @@ class BatchSetup:
 
     STACK_BELOW: ClassVar[int] = 16  # batches up to this size evaluate both configurations of a step in one call
     # from this batch size the batched backend solves with the tree structure, below densely: the
-    # tree's leaves-first elimination costs a fixed time per level of the tree (some 5 ms a step for
-    # Human66 on one core of this project's CPU), a dense Cholesky of B matrices less up to about
-    # 96 subjects (Human66 at B = 8: 3-4 ms a step dense, 7-11 ms on the tree; equal at B = 96)
+    # tree's leaves-first elimination costs a fixed time per level of the tree, a dense Cholesky of
+    # B matrices less up to about 96 subjects, where the two cost the same for Human66 (the
+    # timings: experiments/speed_history.md)
     TREE_FROM: ClassVar[int] = 96
     # captured (settings.compile), the tree's elimination costs no time per level and is the faster
-    # solve from this size (Human66 at B = 64: 2.3 ms a step against 4.7 ms dense). At B = 1 the
-    # dense step is faster (0.22 against 0.37 ms, interleaved in one process), and the tree's first
-    # capture on a machine takes twice as long (61-66 against 35 s)
+    # solve from this size. At B = 1 the dense step is faster, and the tree's first capture on a
+    # machine takes twice as long (the timings: experiments/speed_history.md)
     CAPTURED_TREE_FROM: ClassVar[int] = 32
 
     size: int

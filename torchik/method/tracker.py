@@ -314,8 +314,9 @@ class DynamicalIK:
 
     # ------------------------------------------------------------------ whole sequences
     def run(self, sequence: TargetSequence, initial: State | None = None, progress: bool | None = None,
-            interruptible: bool = False) -> Trajectory:
-        """Track a whole sequence from `initial` (default: `initial_state` of the first targets).
+            interruptible: bool = False, settle: float = 0.0) -> Trajectory:
+        """Track a whole sequence from `initial` (default: `initial_state` of the first targets; with
+        `settle` > 0 seconds, at rest in their posture: `sequence.settled_state`).
 
         Sample k of the result is the state after the step towards targets k. Steps at the nominal
         rate (to the rounding of the timestamps) take the nominal dt, others (jitter, gaps) their own.
@@ -325,11 +326,12 @@ class DynamicalIK:
         """
         if len(sequence) == 0:
             raise InputError("the sequence is empty")
-        return next(iter(run_parts(self, [sequence], sequence.time, initial, progress, interruptible)))
+        return next(iter(run_parts(self, [sequence], sequence.time, initial, progress, interruptible, settle)))
 
     def run_parts(self, parts: Iterable[TargetSequence], time: torch.Tensor, initial: State | None = None,
-                  progress: bool | None = None, interruptible: bool = False) -> Generator[Trajectory, None, None]:
+                  progress: bool | None = None, interruptible: bool = False,
+                  settle: float = 0.0) -> Generator[Trajectory, None, None]:
         """`run` over a sequence given a part at a time (time [T]: all its time stamps; parts: its
         targets, in order): yields each part's trajectory when done (`sequence.run_parts`)."""
-        return run_parts(self, parts, time, initial, progress, interruptible)
+        return run_parts(self, parts, time, initial, progress, interruptible, settle)
 

@@ -72,24 +72,30 @@ def link_motion_chunks(model: KinematicModel, trajectory: Trajectory, links, sch
 def known_targets(sequence: TargetSequence, frames: int | None = None) -> torch.Tensor:
     """[T,B] bool: every orientation and angular-velocity target of the sample is given (a missing
     one is NaN), over the first `frames` samples (default all)."""
+    return present_targets(sequence, frames).all(-1)
+
+
+def present_targets(sequence: TargetSequence, frames: int | None = None) -> torch.Tensor:
+    """[T,B,L] bool: link l's orientation target is there at the sample, its rotation and angular
+    velocity both finite (what the tracker keeps, `clean_targets`), over the first `frames` samples."""
     R, w = sequence.rotation[:frames], sequence.angular_velocity[:frames]
-    return torch.isfinite(R).flatten(-3).all(-1) & torch.isfinite(w).flatten(-2).all(-1)
+    return torch.isfinite(R).flatten(-2).all(-1) & torch.isfinite(w).all(-1)
 
 
 def tracking_errors(model: KinematicModel, trajectory: Trajectory, sequence: TargetSequence, links,
                     scheme: str | None = "midpoint", next_velocity: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
     """The paper's metrics of every subject at every sample: mnte [T,B] and rmse [T,B] (rad/s),
     estimate at t_k against the targets at t_k (`sequence` cut to the trajectory's length; scheme
-    and next_velocity as `link_motion_chunks`'). NaN where any target of the sample is missing."""
+    and next_velocity as `link_motion_chunks`'), each a mean over the targets present at the sample
+    (`present_targets`, as the tracker's step has them); NaN only where none is."""
     T, B = trajectory.velocity.shape[:2]
-    known = known_targets(sequence, T)
-    out = {name: trajectory.velocity.new_full((T, B), float("nan")) for name in ("mnte", "rmse")}
+    present = present_targets(sequence, T)  # [T,B,L]
+    out = {name: trajectory.velocity.new_empty((T, B)) for name in ("mnte", "rmse")}
     chunks = link_motion_chunks(model, trajectory, links, scheme, next_velocity=next_velocity)
     for steps, R_hat, w_hat in chunks:  # a chunk at a time: bounded memory
-        ok = known[steps]
-        out["mnte"][steps] = torch.where(ok, mnte(sequence.rotation[steps], R_hat), out["mnte"][steps])
-        out["rmse"][steps] = torch.where(ok, angular_velocity_rmse(sequence.angular_velocity[steps], w_hat),
-                                         out["rmse"][steps])
+        ok = present[steps]
+        out["mnte"][steps] = mnte(sequence.rotation[steps], R_hat, ok)
+        out["rmse"][steps] = angular_velocity_rmse(sequence.angular_velocity[steps], w_hat, ok)
     return out
 
 
@@ -124,14 +130,23 @@ def summary(values: torch.Tensor, time: torch.Tensor, transient: float = 2.0) ->
 
 def tracking_statistics(trajectory: Trajectory, sequence: TargetSequence, recording: Recording,
                         model: KinematicModel, transient: float) -> dict:
-    """What `torchik track` reports of subject 0's accuracy, after `transient` seconds and over the
-    frames whose targets are all known: mnte and angular_velocity_rmse (`summary` dicts, None when
-    no frame is known) and, when the recording carries the model's joint angles, joint_error_rad
-    (max, rms). trajectory: [T,1,...] with the mnte and rmse diagnostics (`tracking_errors`);
-    sequence: its targets (at least T frames)."""
+    """What `torchik track` reports of subject 0's accuracy: mnte and angular_velocity_rmse
+    (`summary` dicts over the steps with a target, None when no step has one) from
+    statistics_from_s seconds after the first sample (`transient`, or 0 when the run has no
+    measured step that late: its statistics are then the whole run's), steps_without_targets (the
+    steps whose metrics are NaN) and, when the recording carries the model's joint angles,
+    joint_error_rad (max, rms). trajectory: [T,1,...] with the mnte and rmse diagnostics
+    (`tracking_errors`); sequence: its targets (at least T frames)."""
     statistics = TrackingStatistics(model, transient, len(trajectory.time))
     statistics.add(trajectory, sequence, recording)
     return statistics.result()
+
+
+def statistics_start(time: torch.Tensor, measured: torch.Tensor, transient: float) -> float:
+    """Seconds after time[0] from which a run's statistics are taken: `transient` when a measured
+    step (measured [T] bool) comes that late, else 0 (the whole run, shorter than the transient)."""
+    late = time >= time[0] + transient
+    return float(transient) if bool((late & measured).any()) else 0.0
 
 
 class Series:
@@ -163,7 +178,7 @@ class TrackingStatistics:
 
     def __init__(self, model: KinematicModel, transient: float, frames: int):
         self.model, self.transient = model, transient
-        self.time, self.known = Series(frames), Series(frames)
+        self.time = Series(frames)
         self.metrics = dict(mnte=Series(frames), rmse=Series(frames))
         # joint error: max and sum of squares (and their count) after the transient, and over all samples
         # (what is reported when the run is shorter than the transient)
@@ -174,7 +189,6 @@ class TrackingStatistics:
         done, time, d = len(trajectory.time), trajectory.time, trajectory.diagnostics
         start = float((self.time.values() if self.time.done else time)[0])
         self.time.append(time)
-        self.known.append(known_targets(sequence, done)[:, 0])  # [t]
         for name, series in self.metrics.items():
             series.append(d[name][:, 0])
         if recording.joint_positions is not None and recording.joint_names == self.model.joint_names:
@@ -187,11 +201,18 @@ class TrackingStatistics:
                     total[:] = [max(total[0], float(e.max())), total[1] + float(e.square().sum()), total[2] + e.numel()]
 
     def result(self) -> dict:
-        """mnte, angular_velocity_rmse and (with ground truth) joint_error_rad, as `tracking_statistics`."""
-        time, known = self.time.values().cpu(), self.known.values().cpu()  # the run's device may be a GPU
-        any_known = bool(known.any())
-        out: dict = {name: summary(series.values().cpu()[known], time[known], self.transient) if any_known else None
-                     for name, series in zip(("mnte", "angular_velocity_rmse"), self.metrics.values())}
+        """mnte, angular_velocity_rmse, statistics_from_s, steps_without_targets and (with ground
+        truth) joint_error_rad, as `tracking_statistics`."""
+        time = self.time.values().cpu()  # the run's device may be a GPU
+        values = {name: series.values().cpu() for name, series in self.metrics.items()}
+        measured = torch.isfinite(values["mnte"])  # NaN only where no target is (`tracking_errors`)
+        start = statistics_start(time, measured, self.transient)
+        window = time >= time[0] + start
+        out: dict = {}
+        for key, v in zip(("mnte", "angular_velocity_rmse"), values.values()):
+            keep = window & torch.isfinite(v)
+            out[key] = summary(v[keep], time[keep], 0.0) if bool(keep.any()) else None
+        out.update(statistics_from_s=start, steps_without_targets=int((~measured).sum()))
         if self.joints is not None:
             peak, squares, count = self.joints["after" if self.joints["after"][2] else "all"]
             out["joint_error_rad"] = dict(max=peak, rms=math.sqrt(squares / count))

@@ -2,7 +2,7 @@
 
 glibc maps every block above its mmap threshold (at most 32 MB) afresh and unmaps it when freed,
 so each new intermediate tensor of a large batch costs first-touch page faults, often more than
-the arithmetic on it (a 7 MB tensor: about 2 ms of faults). `keep_freed_memory()` serves every
+the arithmetic on it (experiments/speed_history.md). `keep_freed_memory()` serves every
 block from the heap and stops trimming it, as tcmalloc or jemalloc would: freed memory is reused
 and not returned to the system while the process lives. It changes how the
 process allocates, not what it computes; torchik's command line and benchmarks call it, and a

@@ -117,7 +117,7 @@ class _MvnSender:
         self.frames, self.max_bytes = frames, max_bytes
         # per recording frame: types 21, 22, as tuples of bytes, which the garbage collector stops
         # tracking: as lists, the cache (some 65,000 of them in 90 s at 240 Hz) brought on a full
-        # collection of the replaying process (measured 185 ms: a 44-frame stall of the stream)
+        # collection of the replaying process: a stall of the stream (experiments/live_latency.md)
         self.payloads: dict[int, tuple[tuple[bytes, ...], tuple[bytes, ...]]] = {}
         try:
             if url.scheme == "udp":

@@ -5,6 +5,12 @@ or a Recording in memory), implausible samples dropped, made targets, tracked wi
 carried over, measured, and handed to the outputs (the report's figures, the trajectory file, the
 rerun recording) as the next chunks are read. Memory is a few chunks', whatever the length; the
 trajectory, the report and the outputs are those of tracking the whole recording at once.
+
+`torchik track` and the cohort start the tracker at rest in the first frame's posture (`settle`
+= SETTLE seconds on the first targets held still, `settled_state`), not from the zero posture: a
+clinical trial of 1.5 to 4 s would otherwise be mostly the quarter second or so the tracker takes
+to converge. The functions here take it as `settle` (default 0: from the zero posture, where the
+live loop starts too).
 """
 
 from __future__ import annotations
@@ -31,6 +37,10 @@ from .track_summary import TrackSummary
 # frames read, tracked and written at a time: 41 s at 100 Hz, a few tens of MB for Human66; as many as
 # the metrics' kinematics take per call (evaluation.py), so that they too are those of a run in one piece
 CHUNK = 4096
+# seconds the tracker holds still on the first frame's targets before the run (as the diagnosis does):
+# at the default K = 20/s a small error decays to e^-10 of itself in 0.5 s; a real trial's first frame
+# (MNTE 0.67 from the zero posture) is at its floor after 0.25 s
+SETTLE = 0.5
 
 
 class Source(Protocol):
@@ -50,11 +60,13 @@ class Output(Protocol):
 
 def track_recording(model: KinematicModel, recording: Recording, links, settings: TrackerSettings | None = None,
                     progress: bool = False, transient: float = 2.0, position_links=None,
-                    plausibility: Plausibility | None = None) -> tuple[Trajectory, dict]:
+                    plausibility: Plausibility | None = None, settle: float = 0.0) -> tuple[Trajectory, dict]:
     """Track `recording` (link names already the model's) with `settings` (default TrackerSettings(),
-    dt the recording's median frame interval) and return the trajectory and a report (metrics
-    after `transient` seconds, step times, failures). Samples beyond `plausibility` (default Plausibility()) are dropped
-    as missing ones (`drop_implausible`) and counted.
+    dt the recording's median frame interval), from the zero posture or, with `settle` > 0 (s),
+    from rest in the first frame's posture (as `torchik track`: SETTLE), and return the trajectory
+    and a report (metrics after `transient` seconds, or over the whole run when it is shorter,
+    step times, failures). Samples beyond `plausibility` (default Plausibility()) are dropped as
+    missing ones (`drop_implausible`) and counted.
 
     The trajectory's diagnostics mnte and rmse [T,1] are the paper's metrics (`tracking_errors`:
     the estimate at t_k against the targets at t_k). Ctrl-C stops the tracking early: the
@@ -65,7 +77,7 @@ def track_recording(model: KinematicModel, recording: Recording, links, settings
     settings = dataclasses.replace(settings, dt=nominal_dt(recording, settings))
     summary, implausible, interrupted = track_chunks(model, recording, links, settings, [collected], progress=progress,
                                                      transient=transient, position_links=position_links,
-                                                     plausibility=plausibility)
+                                                     plausibility=plausibility, settle=settle)
     return Trajectory.concatenate(collected.parts), summary.report(settings, implausible, interrupted)
 
 
@@ -81,19 +93,21 @@ class Collected:
 
 def track_chunks(model: KinematicModel, source: Source, links, settings: TrackerSettings, outputs: Iterable[Output] = (),
                  *, progress: bool = False, transient: float = 2.0, position_links=None,
-                 plausibility: Plausibility | None = None, chunk: int = CHUNK) -> tuple[TrackSummary, int, bool]:
+                 plausibility: Plausibility | None = None, chunk: int = CHUNK,
+                 settle: float = 0.0) -> tuple[TrackSummary, int, bool]:
     """Track `source` a chunk of `chunk` frames at a time with `settings` (dt: the nominal step),
-    each part of the trajectory, with its mnte and rmse diagnostics (`tracking_errors`), written to
-    every output as it is done. Returns the run's TrackSummary, the number of samples dropped as
-    implausible, and whether Ctrl-C (or SIGTERM) stopped the run (the outputs then hold the frames
-    done). The recording is read once before the tracking: what is wrong with it (a frame that is
-    not valid, nothing measured) is said before any work."""
+    from the zero posture or, with `settle` > 0 (s), from rest in the first frame's posture
+    (`settled_state`), each part of the trajectory, with its mnte and rmse diagnostics
+    (`tracking_errors`), written to every output as it is done. Returns the run's TrackSummary, the
+    number of samples dropped as implausible, and whether Ctrl-C (or SIGTERM) stopped the run (the
+    outputs then hold the frames done). The recording is read once before the tracking: what is
+    wrong with it (a frame that is not valid, nothing measured) is said before any work."""
     links, bounds = tuple(links), plausibility or Plausibility()
     position_links = tuple(position_links) if position_links is not None else None
     targets = lambda counted: target_chunks(_plausible(source.chunks(chunk), bounds, counted), links,  # noqa: E731
                                             position_links, dtype=model.dtype, device=model.device)
     implausible = _check_measured(targets, links, len(source.time))
-    summary = TrackSummary(model, links, position_links, transient, len(source.time))
+    summary = TrackSummary(model, links, position_links, transient, len(source.time), settle)
     pending: deque[tuple[Recording, TargetSequence]] = deque()  # given to the tracker, their parts not yet back
 
     def parts() -> Iterator[TargetSequence]:
@@ -110,7 +124,7 @@ def track_chunks(model: KinematicModel, source: Source, links, settings: Tracker
 
     time = torch.as_tensor(source.time, dtype=model.dtype, device=model.device)
     run = DynamicalIK(model, links, position_links, settings=settings).run_parts(parts(), time, progress=progress,
-                                                                                 interruptible=True)
+                                                                                 interruptible=True, settle=settle)
     held = None  # a part waits for the next one's first velocity: its last estimate averages the two steps
     interrupted = False
     try:

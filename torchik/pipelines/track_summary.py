@@ -22,11 +22,13 @@ class TrackSummary:
     """A tracked run's report and faults: `add` each part of the trajectory (with its mnte and rmse
     diagnostics, `tracking_errors`) with its targets and recording, in order; then `report` and
     `fault`. position_links: the links whose distance to their position targets is reported
-    (None: none); frames: the most samples the run can have (its recording's)."""
+    (None: none); frames: the most samples the run can have (its recording's); settle: the seconds
+    the run settled on its first frame before it started (0: it started from the zero posture)."""
 
     def __init__(self, model: KinematicModel, links: tuple[str, ...], position_links: tuple[str, ...] | None,
-                 transient: float, frames: int):
+                 transient: float, frames: int, settle: float = 0.0):
         self.model, self.links, self.position_links, self.transient = model, links, position_links, transient
+        self.settle = settle
         self.statistics = TrackingStatistics(model, transient, frames)
         self.step_time = Series(frames)
         self.new_segment = Series(frames)  # subject 0's [T] bool
@@ -72,7 +74,7 @@ class TrackSummary:
             model=self.model.name, links=len(self.links), frames=len(time), duration_s=float(time[-1] - time[0]),
             rate_hz=1.0 / settings.dt, scheme=settings.scheme, backend=settings.backend,
             gains=dict(position=settings.position_gain, orientation=settings.orientation_gain),
-            transient_s=self.transient,
+            transient_s=self.transient, settled_s=self.settle,
             **self.statistics.result(),
             step_time_ms={k: v * 1e3 for k, v in summary(self.step_time.values(), time, 0.0).items()},
             qp_fallbacks=self.counts["qp_fallbacks"], dropped_targets=self.counts["dropped_targets"],
@@ -84,10 +86,13 @@ class TrackSummary:
         if settings.compile:
             report["compiled_steps"] = self.compiled_steps
         if self.position_links is not None:
-            error = self.position_error.values()  # [T,P]
-            report["position_error_m"] = {link: summary(e[torch.isfinite(e)], time[torch.isfinite(e)], self.transient)
-                                          for link, e in zip(self.position_links, error.unbind(-1))
-                                          if bool(torch.isfinite(e).any())}
+            error, t = self.position_error.values().cpu(), time.cpu()  # [T,P], [T]
+            window = t >= t[0] + report["statistics_from_s"]  # the other statistics' window
+            report["position_error_m"] = {}
+            for link, e in zip(self.position_links, error.unbind(-1)):
+                keep = window & torch.isfinite(e)
+                if bool(keep.any()):
+                    report["position_error_m"][link] = summary(e[keep], t[keep], 0.0)
         return report
 
     def fault(self, report: dict, max_failed: float) -> str | None:

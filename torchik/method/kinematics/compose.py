@@ -52,8 +52,8 @@ def frame_poses(t: TreeTensors, p_B, R_B, s) -> tuple[torch.Tensor, torch.Tensor
     if tracing() and B > SMALL_BATCH:
         # one tensor, which TorchInductor computes in a loop of its own, vectorised along the
         # batch; left to fuse into the rotations' loop, it took each sine and cosine one subject at
-        # a time across the 9 entries (these lines alone, Human66 at B = 1024: 0.54 against 1.2 ms;
-        # at one subject there is no batch to vectorise along, and the fused loop was faster)
+        # a time across the 9 entries, in twice the time (experiments/speed_history.md); at one
+        # subject there is no batch to vectorise along, and the fused loop was faster
         both = torch.cat((torch.sin(angle), 1.0 - torch.cos(angle)))
         sin, one_minus_cos = both[:len(angle), None, None, :], both[len(angle):, None, None, :]
     else:

@@ -100,8 +100,8 @@ _LOADING = threading.Lock()  # two threads building their first models load it o
 def urdf_class():
     """pytorch-kinematics' URDF parser (its `urdf_parser_py` subpackage), loaded on its own under
     PARSER. `import pytorch_kinematics.urdf_parser_py` would first run the package's `__init__`,
-    which imports its IK solvers, SDF tools and matplotlib: 0.5-0.8 s on this project's 2-core
-    machine, against 0.02 s for the parser (lxml, yaml), and a third of what building a model cost.
+    which imports its IK solvers, SDF tools and matplotlib: far longer than the parser's own import
+    (lxml, yaml), and a third of what building a model cost (experiments/speed_history.md).
     The subpackage imports only itself (relative imports), so it loads the same under another name.
     Where the package was imported before the first model is built, its own parser is used."""
     if "pytorch_kinematics" in sys.modules:

@@ -107,7 +107,7 @@ def unconstrained(problem: QPProblem) -> Unconstrained:
         x, positive = factor.solve(-problem.g.unsqueeze(-1)).squeeze(-1), factor.positive
     else:
         # LAPACK's upper factor: torch makes the lower one from a transposed copy and clears it
-        # above the diagonal (one subject's [72,72] H: 63 against 73 us with the solves). Two
+        # above the diagonal (slower for one subject's [72,72] H: experiments/speed_history.md). Two
         # triangular solves: cholesky_solve does the same with copies and checks that cost, for
         # one subject, twice as much again
         U, info = torch.linalg.cholesky_ex(problem.dense_hessian, upper=True)

@@ -19,8 +19,8 @@ import numpy as np
 from .manifest import TrialSpec
 
 MAX_BATCH = 64  # subjects: a lost (or failed, then redone trial by trial) batch costs no more than this
-# A step's time grows slowly with the batch (Human66 on one core: about 3 ms for 1 subject, 11 ms
-# for 20, 16 ms for 40), so a worker does most with one large batch; more, smaller batches
+# A step's time grows slowly with the batch (the timings: experiments/speed_history.md), so a
+# worker does most with one large batch; more, smaller batches
 # would only trade that for finer resuming, which MAX_BATCH already bounds.
 BATCHES_PER_WORKER = 1
 

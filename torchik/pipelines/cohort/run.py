@@ -171,7 +171,7 @@ def start_forkserver() -> bool:
 
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return False
-    # the URDF parser is loaded on first use (urdf.urdf_class, 0.02 s): not pytorch_kinematics, whose
+    # the URDF parser is loaded on first use (urdf.urdf_class, a quick import): not pytorch_kinematics, whose
     # package would bring its IK solvers and matplotlib into every worker
     preload = ["distributed", "torchik.pipelines.cohort.trial"]
     multiprocessing.get_context("forkserver").set_forkserver_preload(preload)

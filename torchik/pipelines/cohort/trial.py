@@ -2,8 +2,8 @@
 trial's results on its own.
 
 A trial goes through what `torchik track` does for one recording (`io.read`, the link map and
-its calibration, `recording_targets`, `DynamicalIK`, `tracking_errors`, `summary`,
-`save_trajectory`); only the tracker's batch holds several subjects. Trials shorter than the
+its calibration, `recording_targets`, `DynamicalIK` settled on the first frame, `tracking_errors`,
+`summary`, `save_trajectory`); only the tracker's batch holds several subjects. Trials shorter than the
 batch's longest are padded with their last frame held still and cut back before anything is
 measured: the tracker is causal (step k reads targets up to k), so padding changes nothing.
 
@@ -44,14 +44,16 @@ from ...method.models import TRACKED_LINKS, human_urdf, icub_urdf_path, load_mod
 from ...method.state import TargetSequence, Trajectory
 from ...method.tracker import DynamicalIK
 from ..evaluation import summary, tracking_errors, tracking_statistics
+from ..track import SETTLE
 from .manifest import TrialSpec, human_subject
 from .plan import Batch
 
 DIVERGED_MNTE = 0.5  # a median MNTE above it (a mean orientation error beyond 60 degrees) is no tracking
 SAME_TIME = 1e-9  # relative to dt: time steps that agree this well share a batch's time line
-COLUMNS = ("trial", "subject", "model", "status", "error", "frames", "duration_s", "rate_hz", "mnte_median",
-           "mnte_p99", "mnte_max", "rmse_median", "rmse_p99", "rmse_max", "joint_error_max", "joint_error_rms",
-           "qp_fallbacks", "dropped_targets", "step_time_ms", "track_s", "batch", "batch_size", "padded_frames")
+COLUMNS = ("trial", "subject", "model", "status", "error", "frames", "duration_s", "rate_hz", "statistics_from_s",
+           "mnte_median", "mnte_p99", "mnte_max", "rmse_median", "rmse_p99", "rmse_max", "joint_error_max",
+           "joint_error_rms", "qp_fallbacks", "dropped_targets", "step_time_ms", "track_s", "batch", "batch_size",
+           "padded_frames")
 
 
 @dataclass
@@ -179,7 +181,7 @@ def track_together(group: list[Prepared]) -> tuple[Trajectory, float]:
         tracker = DynamicalIK(model, lead.links, position_gain=spec.position_gain,
                               orientation_gain=spec.orientation_gain, dt=lead.dt, scheme=spec.scheme,
                               backend=spec.backend)
-    trajectory = tracker.run(sequence, progress=False)
+    trajectory = tracker.run(sequence, progress=False, settle=SETTLE)  # each subject at rest in its first frame
     return trajectory, time.perf_counter() - start
 
 
@@ -230,14 +232,16 @@ def _first_time(marker: str) -> bool:
 
 def trial_row(p: Prepared, trajectory: Trajectory) -> dict:
     """The summary row of a tracked trial (trajectory [T,1,...] with mnte and rmse diagnostics):
-    the statistics `torchik track` reports, after the spec's transient, over the frames whose
-    targets are all known; status 'failed' with the reason when the trial diverged."""
+    the statistics `torchik track` reports, from statistics_from_s (the spec's transient, or 0 for
+    a trial shorter than it), over the steps with a target; status 'failed' with the reason when
+    the trial diverged."""
     t, d, spec = trajectory.time, trajectory.diagnostics, p.spec
     row: dict[str, Any] = dict(trial=spec.trial, subject=spec.subject, model=spec.model, status="ok", error=None,
                frames=len(t), duration_s=float(t[-1] - t[0]), rate_hz=1.0 / p.dt,
                qp_fallbacks=int((~d["solved"]).sum()), dropped_targets=int(d["dropped"].sum()),
                step_time_ms=summary(d["step_time"], t, 0.0)["median"] * 1e3)
     stats = tracking_statistics(trajectory, p.sequence, p.recording, p.model, spec.transient)
+    row["statistics_from_s"] = stats["statistics_from_s"]
     for name, key in (("mnte", "mnte"), ("rmse", "angular_velocity_rmse")):
         row.update({f"{name}_{k}": _number((stats[key] or {}).get(k)) for k in ("median", "p99", "max")})
     if "joint_error_rad" in stats:
@@ -248,7 +252,8 @@ def trial_row(p: Prepared, trajectory: Trajectory) -> dict:
     if len(bad):
         row.update(status="failed", error=f"diverged: non-finite state from t = {float(t[bad[0, 0]] - t[0]):.3f} s")
     elif row["mnte_median"] is not None and row["mnte_median"] > DIVERGED_MNTE:
-        row.update(status="failed", error=f"diverged: median MNTE {row['mnte_median']:.3g} after the transient "
+        row.update(status="failed", error=f"diverged: median MNTE {row['mnte_median']:.3g} from "
+                                          f"{row['statistics_from_s']:g} s "
                                           f"(above {DIVERGED_MNTE}: the estimate no longer follows)")
     return row
 

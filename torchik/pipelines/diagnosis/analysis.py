@@ -33,7 +33,7 @@ from ...method import so3
 from ...method.kinematics import KinematicModel
 from ...method.sequence import nominal_steps
 from ...method.settings import TrackerSettings
-from ...method.state import State, TargetSequence, Trajectory
+from ...method.state import TargetSequence, Trajectory
 from ...method.tracker import DynamicalIK
 from ..evaluation import link_motion
 from . import chunks, streams
@@ -193,15 +193,7 @@ def settled_run(model: KinematicModel, links, sequence: TargetSequence, dt: floa
     """`track`'s run of `sequence` [T,B,...] in one piece, after settling on its first targets."""
     tracker = DynamicalIK(model, links, position_gain=gain, orientation_gain=gain, dt=dt,
                           backend="batched" if sequence.rotation.shape[1] > 1 else "auto")
-    n = max(2, int(round(settle / dt)))
-    first = sequence[0]
-    still = lambda x: x[None].expand(n, *x.shape)  # noqa: E731
-    held = tracker.run(TargetSequence(sequence.time[0] + dt * torch.arange(n - 1, -1, -1.0, dtype=sequence.time.dtype).neg(),
-                                      still(first.position), torch.zeros_like(still(first.linear_velocity)),
-                                      still(first.rotation), torch.zeros_like(still(first.angular_velocity))))
-    rest = State(held.base_position[-1], held.base_rotation[-1], held.joint_positions[-1],
-                 torch.zeros_like(held.velocity[-1]))
-    return tracker.run(sequence, initial=rest, progress=progress)
+    return tracker.run(sequence, progress=progress, settle=settle)
 
 
 def reference_pose(recording: Recording) -> str | None:

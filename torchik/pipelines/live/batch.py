@@ -76,7 +76,7 @@ class LiveRetarget:
             raise InputError(f"--retarget: map {self.link_map.name!r} takes the base from {self.link_map.base_segment!r}; "
                              f"the tracked model's base link is {base_link!r}")
         self.selection = Selection.build(links, (), self.link_map)
-        # no restart after a gap: a whole-body fit takes some 200 ms, longer than the gap it would
+        # no restart after a gap: a whole-body fit takes longer than the gap it would
         # follow, and the next gap would restart it again; the robot moves on from where it is at its
         # rate limits instead, as its position controller would
         self.batch = BatchTracker(icub_tracker(self.model, self.selection.links, rate, self.gain, self.limits,

@@ -1,8 +1,8 @@
 """Python's cyclic garbage collector run by the live loop between samples (`IdleCollector`).
 
 Left to itself the collector runs whenever allocations cross its thresholds: in the middle of a
-step, the targets' assembly or an LSL push, and that sample's latency takes the pause (a gen-1
-collection some 1 ms, a full one more). The live loop turns automatic collection off and runs the
+step, the targets' assembly or an LSL push, and that sample's latency takes the pause (the
+timings: experiments/live_latency.md). The live loop turns automatic collection off and runs the
 collections that have come due itself, after a step has been published, when the next sample is
 the furthest off. The thresholds stay the collector's own: only the moment changes."""
 

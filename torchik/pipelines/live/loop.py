@@ -11,7 +11,13 @@ step, as they would offline. A character without a sample in a step has its targ
 the pose of its new targets, when it comes back. The per-step work is batched: targets, dt, the
 published values and the history are array operations over the characters; only the LSL push is
 one call per character (one outlet each). Python's garbage collector runs between samples, after a
-step is published (`IdleCollector`), not inside a step."""
+step is published (`IdleCollector`), not inside a step.
+
+Before the first sample the tracker is built and stepped for the links the session expects and
+its expected characters (`_Loop.warm_up`), and a receiver process is waited for: the set-up's
+imports (the QP solvers' take a second or more), torch's first calls and, where the stream's rate
+is known, the compiled step's capture are paid before the stream, not while its first samples
+wait (they were skipped: half a second of a 100 Hz stream)."""
 
 from __future__ import annotations
 
@@ -19,15 +25,19 @@ import dataclasses
 import gc
 import threading
 import time
+import warnings
 from dataclasses import dataclass
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
 
 from ...live.sample import Sample, Source
 from ...method.kinematics import KinematicModel
+from ...method.models import TRACKED_LINKS
 from ...method.settings import TrackerSettings
 from ...method.tracker import DynamicalIK
+from ...synthetic.motion import periodic_motion, targets_from_motion
 from .batch import BatchTracker, LiveRetarget, rows_from
 from .collect import IdleCollector
 from .history import History, LiveResult, milliseconds
@@ -46,7 +56,8 @@ class LiveOptions:
     rest of a frame's characters (None: half a frame); duration_s: stop after this long;
     stop_when_idle_s: stop once the source has been silent this long (replays, tests); None:
     run until Ctrl-C. keep_states: keep every step's states for the trajectories (`--out`); without,
-    only what the report needs."""
+    only what the report needs. characters: how many the stream is expected to bring: the tracker
+    is warmed up for that batch (and for one, as a batch starts) before the first sample."""
 
     backlog: int | None = None
     stall_s: float = 1.0
@@ -54,6 +65,7 @@ class LiveOptions:
     duration_s: float | None = None
     stop_when_idle_s: float | None = None
     keep_states: bool = True
+    characters: int = 1
 
 
 @dataclass
@@ -68,13 +80,17 @@ class Outputs:
 
 def track_live(source: Source, model: KinematicModel, selection_for, settings: TrackerSettings | None = None,
                options: LiveOptions | None = None, publisher: Publisher | None = None, progress=None,
-               viewer: LiveViewer | None = None, retarget: LiveRetarget | None = None) -> LiveResult:
+               viewer: LiveViewer | None = None, retarget: LiveRetarget | None = None,
+               links: Sequence[str] | None = None, on_ready: Callable[[], None] | None = None) -> LiveResult:
     """Track `source` until it ends, `options` stop it, or Ctrl-C (then `interrupted`).
 
     selection_for: a function of the source's segment names giving the `Selection` (built once,
     at the first sample); progress: called with (counters, seconds since the start) about once a
     second; viewer: a LiveViewer; retarget: a LiveRetarget (the publisher then carries the robot's
-    joints)."""
+    joints); links: those `selection_for` is expected to give (None: the model's `TRACKED_LINKS`,
+    where it has them), for which the tracker is warmed up before the first sample; on_ready:
+    called once it is, and the source's receiver with it: from then on no sample waits for the
+    set-up."""
     options = options or LiveOptions()
     mailbox = Mailbox(options.backlog or BACKLOG)
     # a source that receives in a process of its own is polled from this thread: no second thread
@@ -91,6 +107,14 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
     collector = IdleCollector().start()  # garbage collected between samples, not in a step
     catch_up = CatchUp(options.backlog)
     try:
+        expected = links if links is not None else TRACKED_LINKS.get((model.name or "").lower())
+        if expected is not None:
+            loop.warm_up(expected, source.rate, options.characters)
+        wait_ready = getattr(source, "wait_ready", None)  # a receiver process starts in seconds
+        if wait_ready is not None:
+            wait_ready(READY_TIMEOUT_S)
+        if on_ready is not None:
+            on_ready()
         while True:
             # a source knows its rate before it yields its first sample (MVN estimates it from the
             # first time codes, LSL reads the stream's nominal rate)
@@ -130,6 +154,11 @@ def track_live(source: Source, model: KinematicModel, selection_for, settings: T
         if viewer is not None:
             viewer.close(_counters(source, mailbox, loop))
     return loop.result(source, mailbox, interrupted)
+
+
+READY_TIMEOUT_S = 60.0  # at most this long for a receiver process to start (seconds on a loaded machine)
+WARM_UP_STEPS = 5  # past the third, where a compiled step is captured
+WARM_UP_RATE = 100.0  # Hz, the warm-up's while the stream's rate is not known
 
 
 def _receive(source: Source, mailbox: Mailbox) -> None:
@@ -185,12 +214,44 @@ class _Loop:
         self.rate = float("nan")
         self.clock_offset = 0.0
         self._batch_size, self._steps_at_size = 0, 0
+        self._warm: DynamicalIK | None = None  # the tracker warmed up for the expected links and rate
+
+    def warm_up(self, links: Sequence[str], rate: float | None, characters: int = 1) -> None:
+        """The tracker for `links` at `rate` (None: not yet known) built and stepped, a few steps of
+        a walking-like motion, for `characters` rows and for one: its imports, backends and torch's
+        first calls are then paid, and, with a known rate, its compiled step captured (settings.compile).
+        With a known rate it is kept for the session, whose first sample then finds it ready, when that
+        sample brings these links; else it only warms the process (a tracker is built in milliseconds
+        after that, and captures at its third step)."""
+        known = rate is not None
+        settings = dataclasses.replace(self.settings, dt=1.0 / (rate or WARM_UP_RATE),
+                                       compile=self.settings.compile and known)
+        with warnings.catch_warnings():
+            if not known:  # a guessed rate's warnings (K dt) are not the session's
+                warnings.simplefilter("ignore")
+            tracker = DynamicalIK(self.model, links, settings=settings)
+        motion = periodic_motion(self.model, WARM_UP_STEPS * tracker.dt, 1.0 / tracker.dt, batch=max(1, characters),
+                                 dtype=self.model.dtype)
+        sequence = targets_from_motion(self.model, motion, tracker.orientation_links, tracker.position_links)
+        rows = lambda x, size: type(x)(*(t[:size] for t in vars(x).values()))  # noqa: E731
+        for size in sorted({1, max(1, characters)}):
+            tracker.reset(rows(motion.state(0), size), batch=size)
+            for k in range(WARM_UP_STEPS):
+                tracker.step(rows(sequence[k], size))
+        self._warm = tracker if known else None
+        gc.freeze()  # what the set-up made, out of the collector's reach (`_freeze_after_set_up`)
+
+    def _tracker(self, links: Sequence[str], rate: float) -> DynamicalIK:
+        """The session's tracker: the one warmed up, for these links at this rate, or a new one."""
+        warm, self._warm = self._warm, None
+        if warm is not None and warm.orientation_links == tuple(links) and warm.dt == 1.0 / rate:
+            return warm
+        return DynamicalIK(self.model, links, settings=dataclasses.replace(self.settings, dt=1.0 / rate))
 
     def _start(self, first: Sample, rate: float) -> None:
         selection: Selection = self.selection_for(first.links)
         self.selection, self.rate = selection, rate
-        settings = dataclasses.replace(self.settings, dt=1.0 / rate)
-        self.human = BatchTracker(DynamicalIK(self.model, selection.links, settings=settings))
+        self.human = BatchTracker(self._tracker(selection.links, rate))
         out = self.outputs
         if out.retarget is not None:
             out.retarget.start(selection.links, self.model.base_link, rate)
@@ -241,8 +302,8 @@ class _Loop:
         """Moves what the set-up made (the model, torch's and TorchInductor's modules, a captured
         step: millions of objects) out of the garbage collector's reach, after the first steps of each
         batch size (the capture is made at the third). Otherwise every full collection walks them all:
-        measured 150-180 ms a collection with the compiled step, some 40 frames at 240 Hz; frozen, a
-        collection walks only what the session made since."""
+        with the compiled step a collection stalled tens of frames at 240 Hz (experiments/live_latency.md);
+        frozen, a collection walks only what the session made since."""
         assert self.human is not None
         if self.human.size != self._batch_size:
             self._batch_size, self._steps_at_size = self.human.size, 0
