@@ -30,11 +30,12 @@ import torch
 
 from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.diagnosis.calibration import apply_calibration
+from torchik.pipelines.diagnosis.drift import HeadingDrift
 from torchik.pipelines.diagnosis.effect import CHUNKS, GUARD, SIGNIFICANT, blocks, halves, lowpass_blocks, score
 from torchik.pipelines.diagnosis.gyro import GyroBias, GyroScale, StreamDelay
 from torchik.pipelines.diagnosis.joints import JointLimit, MissingDof
 from torchik.pipelines.diagnosis.loop import diagnose, errors
-from torchik.pipelines.diagnosis.placement import HeadingDrift, Misalignment, SensorDelay
+from torchik.pipelines.diagnosis.placement import Misalignment, SensorDelay
 from torchik.pipelines.diagnosis.position import PositionOffset
 from torchik.pipelines.diagnosis.synthetic import beyond_limit, recording_of, with_missing_dof
 from torchik.synthetic.scenarios import scenario

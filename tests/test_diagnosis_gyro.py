@@ -22,8 +22,8 @@ from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.diagnosis import gyro
 from torchik.pipelines.diagnosis.analysis import analyse
 from torchik.pipelines.diagnosis.candidates import candidates
+from torchik.pipelines.diagnosis.drift import HeadingDrift
 from torchik.pipelines.diagnosis.effect import SIGNIFICANT, halves
-from torchik.pipelines.diagnosis.placement import HeadingDrift
 from torchik.synthetic.scenarios import scenario
 
 LINKS = TRACKED_LINKS["human48"]

@@ -27,10 +27,11 @@ from conftest import kept_subject
 
 from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.diagnosis import jointfit
+from torchik.pipelines.diagnosis.drift import HeadingDrift
 from torchik.pipelines.diagnosis.effect import SIGNIFICANT
 from torchik.pipelines.diagnosis.gyro import GyroBias
 from torchik.pipelines.diagnosis.loop import Diagnosis
-from torchik.pipelines.diagnosis.placement import HeadingDrift, Misalignment
+from torchik.pipelines.diagnosis.placement import Misalignment
 from torchik.pipelines.diagnosis.report import answer, write
 from torchik.pipelines.diagnosis.subject import Subject
 from torchik.synthetic.scenarios import scenario

@@ -26,10 +26,11 @@ import pytest
 from conftest import human48_walk
 
 from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
+from torchik.pipelines.diagnosis.drift import HeadingDrift
 from torchik.pipelines.diagnosis.effect import SIGNIFICANT, Score
 from torchik.pipelines.diagnosis.elimination import hanger_on
 from torchik.pipelines.diagnosis.loop import diagnose
-from torchik.pipelines.diagnosis.placement import HeadingDrift, Misalignment, SensorDelay
+from torchik.pipelines.diagnosis.placement import Misalignment, SensorDelay
 
 LINKS = TRACKED_LINKS["human48"]
 

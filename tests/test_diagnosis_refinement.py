@@ -17,8 +17,9 @@ import pytest
 from conftest import human48_walk
 
 from torchik.method.models import TRACKED_LINKS
+from torchik.pipelines.diagnosis.drift import HeadingDrift
 from torchik.pipelines.diagnosis.loop import Step, diagnose
-from torchik.pipelines.diagnosis.placement import HeadingDrift, Misalignment
+from torchik.pipelines.diagnosis.placement import Misalignment
 from torchik.pipelines.diagnosis.refinement import _refined_beyond, neighbours_kept
 from torchik.pipelines.diagnosis.subject import Subject
 

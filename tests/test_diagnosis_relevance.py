@@ -20,10 +20,11 @@ import pytest
 from conftest import human48_walk
 
 from torchik.method.models import TRACKED_LINKS
+from torchik.pipelines.diagnosis.drift import HeadingDrift
 from torchik.pipelines.diagnosis.gyro import GyroBias, GyroScale, StreamDelay
 from torchik.pipelines.diagnosis.joints import JointLimit, MissingDof
 from torchik.pipelines.diagnosis.loop import diagnose
-from torchik.pipelines.diagnosis.placement import HeadingDrift, Misalignment, SensorDelay
+from torchik.pipelines.diagnosis.placement import Misalignment, SensorDelay
 from torchik.pipelines.diagnosis.position import PositionOffset
 from torchik.pipelines.diagnosis.posture import StaticPose
 

@@ -18,13 +18,13 @@ from pathlib import Path
 from ...errors import InputError
 from ...io.recording import Recording
 from ...method.kinematics import KinematicModel
-from . import frames, gyro, joints, placement, position, posture
+from . import drift, frames, gyro, joints, placement, position, posture
 
 FORMAT = "torchik-calibration/1"
 
 EFFECT_TYPES = {"gyro_bias": gyro.GyroBias, "gyro_scale": gyro.GyroScale, "stream_delay": gyro.StreamDelay,
                 "misalignment": placement.Misalignment, "sensor_delay": placement.SensorDelay,
-                "heading_drift": placement.HeadingDrift, "missing_dof": joints.MissingDof,
+                "heading_drift": drift.HeadingDrift, "missing_dof": joints.MissingDof,
                 "joint_limit": joints.JointLimit, "position_offset": position.PositionOffset,
                 "static_pose": posture.StaticPose, "flipped_frame": frames.FlippedFrame,
                 "swapped_segments": frames.SwappedSegments}

@@ -7,7 +7,7 @@ from typing import Sequence
 
 import torch
 
-from . import gyro, joints, placement, position, posture
+from . import drift, gyro, joints, placement, position, posture
 from .analysis import Analysis
 from .effect import Effect
 
@@ -29,7 +29,9 @@ def candidates(analysis: Analysis, b: int, train: torch.Tensor, test: torch.Tens
     if wanted & {"gyro_bias", "gyro_scale", "stream_delay"}:
         out += gyro.fit(analysis, b, train, test, derived, target=target)
     if wanted & set(placement.KINDS):
-        out += placement.fit(analysis, b, train, test, derived, target=target, kinds=wanted, like=like)
+        out += placement.fit(analysis, b, train, test, target=target, kinds=wanted)
+    if "heading_drift" in wanted:
+        out += drift.fit(analysis, b, train, test, derived, target=target, like=like)
     if "static_pose" in wanted:
         out += posture.fit(analysis, b, train, test, urdf, target=target)
     if wanted & {"missing_dof", "joint_limit"}:

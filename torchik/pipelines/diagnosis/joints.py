@@ -44,7 +44,7 @@ HINGE_RANGE = {"Knee": 15.0, "Elbow": 15.0}
 
 # A joint's angle in a walk or a run comes and goes with the strides; one that a straight line in time
 # explains (RAMP_SHARE of its variance) over several strides (RAMP_SPAN) is a sensor's heading turning
-# against its neighbour's, which a drift (placement.HeadingDrift) names with one parameter
+# against its neighbour's, which a drift (drift.HeadingDrift) names with one parameter
 RAMP_SHARE = 0.8
 RAMP_SPAN = 5.0  # s
 

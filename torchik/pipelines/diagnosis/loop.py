@@ -8,10 +8,10 @@ residuals, repeat.
         calibrated on how its gains scatter across stretches of the test time (Score.calibrated), or
         for an angle fitted sample by sample, a size above the noise that analysis.noise_floor
         estimates) and relevant (Effect.below_floor: the others are listed as negligible), in the
-        order of their scores but for what the physics prefers (_simplest_first, _biased_first,
-        _gyro_first, _offset_first); the first plausible one (Effect.implausible), and with it every
-        other such candidate whose links are not related to those of one chosen or waiting before it
-        (not the same links nor one joint away: disjoint residuals, none the echo of another): refit
+        order of their scores but for what the physics prefers (preference.py); the first plausible
+        one (Effect.implausible), and with it every other such candidate whose links are not related
+        to those of one chosen or waiting before it (not the same links nor one joint away: disjoint
+        residuals, none the echo of another): refit
         each on all the data, add them (correct the recording, or augment the URDF), re-track, and
         refine their parameters `refine` times (the fits are linearised and the tracker absorbs
         part of an effect: Gauss-Newton steps), with the earlier effects of their kind on related
@@ -36,9 +36,6 @@ once, those whose model has changed in a batch of their own.
 
 from __future__ import annotations
 
-import functools
-import math
-from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import numpy as np
@@ -46,249 +43,16 @@ import torch
 
 from ...io.recording import Recording
 from ...method.kinematics import KinematicModel
-from ...method.metrics import orientation_error
-from . import elimination, frames, jointfit, joints, placement, posture, refinement
-from .analysis import DEFAULT_GAIN, Analysis, NoiseFloor, joint_summary, link_summary, noise_floor
-from .calibration import FORMAT
+from . import elimination, frames, jointfit, joints, placement, posture, preference, refinement
+from .analysis import DEFAULT_GAIN, joint_summary, link_summary, noise_floor
 from .candidates import KINDS
 from .effect import SIGNIFICANT, Effect
+from .result import Diagnosis, Errors, Step, errors
 from .subject import Subject, analyse_subjects
 
 FAMILIES = ("gyro", "placement", "joints", "position")
-TIE = 0.9  # a second candidate scoring this share of the best explains the data nearly as well
 WORSE = 1e-3  # an effect that raises its error by more than this share once re-tracked is taken back
 NOISE_SHARE = 0.8  # the noise accounts for this share of what remains: the residual is consistent with it
-STOPS = {"noise": "consistent with noise: no candidate is significant, and the noise accounts for what remains",
-         "unexplained": "no candidate is both significant and plausible, but more remains than the noise accounts "
-                        "for: a cause none of the candidates describes",
-         "unidentifiable": "nothing identifiable: no candidate can be fitted on these data",
-         "negligible": "what the data still show significantly is below the size that matters (listed as negligible)",
-         "cap": "cap reached: candidates were still significant after the last round allowed (--max-effects)"}
-
-
-@dataclass
-class Errors:
-    """Per link: mnte (mean of 1 - cos of the orientation error) and rmse (rad/s, angular velocity),
-    over the time after the transient; overall: their means over the links; base_velocity: the
-    rms of the base's measured linear velocity against the estimate (m/s, per axis)."""
-
-    links: tuple[str, ...]
-    mnte: np.ndarray
-    rmse: np.ndarray
-    base_velocity: float = float("nan")
-
-    @property
-    def overall(self) -> dict:
-        return dict(mnte=float(np.nanmean(self.mnte)), rmse=float(np.nanmean(self.rmse)),
-                    base_velocity_rmse=self.base_velocity)
-
-    def to_json(self) -> dict:
-        return dict(overall=self.overall, per_link={n: dict(mnte=float(m), rmse=float(r))
-                                                    for n, m, r in zip(self.links, self.mnte, self.rmse)})
-
-
-def errors(analysis: Analysis, b: int, transient: float = 1.0) -> Errors:
-    """The tracking errors of subject b against its (current, corrected) measurements."""
-    time = analysis.time
-    keep = time >= time[0] + (transient if float(time[-1] - time[0]) > 3 * transient else 0.0)
-    ok = analysis.valid[:, b] & keep[:, None]  # [T,L]
-    err = orientation_error(torch.where(ok[..., None, None], analysis.R_m[:, b], analysis.R_hat[:, b]), analysis.R_hat[:, b])
-    dw = torch.where(ok[..., None], analysis.w_m[:, b] - analysis.w_hat[:, b], 0.0).square().sum(-1) / 3.0
-    n = ok.sum(0).clamp(min=1)
-    v_hat = analysis.trajectory.velocity[:, b, :3]
-    if analysis.trajectory.velocity.shape[0] > 1:  # the midpoint scheme's nu_k is the mean over the step before t_k
-        v_hat = torch.cat((0.5 * (v_hat[:-1] + v_hat[1:]), v_hat[-1:]))
-    dv = (analysis.v_m[:, b] - v_hat)[keep]
-    dv = dv[torch.isfinite(dv).all(-1)]
-    return Errors(analysis.links, (err.sum(0) / n).numpy(), (dw.sum(0) / n).sqrt().numpy(),
-                  float(dv.square().mean().sqrt()) if len(dv) else float("nan"))
-
-
-@dataclass
-class Step:
-    """One added effect with the errors before and after it."""
-
-    effect: Effect
-    before: Errors
-    after: Errors
-
-
-@dataclass
-class Diagnosis:
-    """What the loop found for one recording: the effects (in the order added) with the errors
-    before and after each, the corrected recording and the (augmented) URDF, the first and last
-    analyses (subject `index` of their batches), the best candidate left (not significant), where
-    the residual sits at the end (link_summary rows, largest first), the joints at a limit, and
-    the candidates the data cannot identify (no fit, notes saying why), and the significant ones
-    not kept (implausible values, or added and taken back because re-tracking with them did not
-    lower the error; notes saying which). complete: the loop ended because no candidate was
-    significant any more (not at max_effects)."""
-
-    steps: list[Step]
-    recording: Recording
-    original: Recording
-    urdf: str
-    model: KinematicModel
-    links: tuple[str, ...]
-    first: tuple[Analysis, int]
-    last: tuple[Analysis, int]
-    best_rejected: Effect | None
-    remaining: list[dict] = field(default_factory=list)
-    limits: list[dict] = field(default_factory=list)
-    unobservable: list[Effect] = field(default_factory=list)
-    rejected: list[Effect] = field(default_factory=list)
-    complete: bool = True
-    stop: str = ""  # why the loop stopped: a key of STOPS
-    noise: NoiseFloor | None = None  # what a correct model would leave, estimated on the last analysis
-    joint: jointfit.Joint | None = None  # the kept measurement effects fitted jointly at the end (jointfit.py)
-    rounds: int = 0  # the rounds that added effects
-    negligible: list[Effect] = field(default_factory=list)  # significant, but below their family's floor: not added
-    unseen: dict = field(default_factory=dict)  # link: [m,3] directions (link frame) of a sensor turn the joints follow
-    confounded: dict = field(default_factory=dict)  # link: its sensor's turns told from a neighbour's only poorly
-
-    @property
-    def why_stopped(self) -> str:
-        share = "" if self.noise is None else f" (the noise accounts for {100 * self.noise.share:.0f} % of the residual)"
-        return STOPS.get(self.stop, self.stop) + share
-
-    @property
-    def effects(self) -> list[Effect]:
-        return [s.effect for s in self.steps]
-
-    @functools.cached_property  # the report reads them dozens of times; each is a pass over [T,L] rotations
-    def before(self) -> Errors:
-        return errors(*self.first)
-
-    @functools.cached_property
-    def after(self) -> Errors:
-        return errors(*self.last)
-
-    def calibration(self) -> dict:
-        """The measurement effects, as `apply_calibration` reads them (JSON-ready)."""
-        return dict(format=FORMAT, links=list(self.links),
-                    effects=[e.to_json() for e in self.effects if not e.model_effect],
-                    fit=None if self.joint is None else self.joint.note)
-
-
-def _area(s: Subject, effect: Effect) -> tuple[set[str], set[str]]:
-    """The tracked links a candidate of subject s moves and its neighbourhood (elimination.reach and
-    neighbourhood), a missing axis's in the model that has it."""
-    links, urdf, model = s.current[0].links, s.urdf, s.model
-    if isinstance(effect, joints.MissingDof):
-        urdf = effect.augment(urdf)
-        model = KinematicModel.from_urdf(urdf, name=model.name, dtype=model.dtype)
-    return elimination.reach(effect, model, links), elimination.neighbourhood(effect, model, urdf, links)
-
-
-def _relevant(s: Subject, passing: list[Effect]) -> list[Effect]:
-    """The candidates of `passing` at or above their family's floor (Effect.below_floor); the others are
-    recorded in s.negligible (the latest fit of each kind and target), noted "significant but negligible",
-    and never added: they are real to the data and matter to no one, and adding them would cost a round
-    of tracking and, fitted on what the larger effects leave, risk echoes."""
-    dt = float(torch.diff(s.current[0].time).median())
-    out = []
-    for c in passing:
-        why = c.below_floor(dt)
-        if not why:
-            out.append(c)
-            continue
-        c.notes = "; ".join(filter(None, [c.notes, f"significant but negligible: {why}"]))
-        s.negligible[(c.kind, c.target)] = c
-    for c in out:  # relevant now: what an earlier round found negligible of it is no longer the word
-        s.negligible.pop((c.kind, c.target), None)
-    return out
-
-
-def _simplest_first(s: Subject, passing: list[Effect]) -> list[Effect]:
-    """`passing` (best first) with the best replaced by the simplest of its rivals: candidates of its
-    kind on related links (elimination.related: they explain the same residual) that score within TIE
-    of it with fewer parameters identified, the fewest first. Where the joints share a rotation
-    between several links (a spine whose joints have no axis along it), one sensor's offset shows on
-    its neighbours too, and a neighbour's fit that adds directions the joints nearly follow picks up
-    the rest of the residual with them: it scores about as well, with values no strap allows."""
-    if not passing:
-        return passing
-    best = passing[0]
-    near = _area(s, best)[1]
-    rivals = [c for c in passing[1:] if c.kind == best.kind and c.n_params < best.n_params
-              and c.score >= TIE * best.score and _area(s, c)[0] & near]
-    if not rivals:
-        return passing
-    simplest = min(rivals, key=lambda c: (c.n_params, -c.score))
-    simplest.notes = "; ".join(filter(None, [simplest.notes, f"preferred to {best.kind} at {best.target} (score "
-                                             f"{best.score:.0f} with {best.n_params} parameters against "
-                                             f"{simplest.score:.0f} with {simplest.n_params})"]))
-    return [simplest] + [c for c in passing if c is not simplest]
-
-
-TIED = 0.99  # two candidates scoring within 1 % of each other explain the data equally: the data cannot choose
-
-
-def _biased_first(s: Subject, passing: list[Effect]) -> list[Effect]:
-    """`passing` with each drift its gyro shares put after a tied rival (a drift on a related link scoring
-    within TIED of it: a heading tied to a neighbour's by joints without a vertical axis turns one way
-    or the neighbour's the other, and the orientations cannot tell which) on a link whose own gyro shows
-    a bias among the candidates: a heading-free filter integrates its gyro's bias about the vertical
-    into the drift and leaves the rest in the gyro's stream (placement.HeadingDrift), so the biased
-    gyro is the drifting one."""
-    biased = {c.target for c in passing if c.kind == "gyro_bias"}
-    out = list(passing)
-    for c in passing:
-        if c.kind != "heading_drift" or c.target in biased:
-            continue
-        near = _area(s, c)[1]
-        rival = next((r for r in out if r.kind == c.kind and r.target in biased and r.score >= TIED * c.score
-                      and c.score >= TIED * r.score and _area(s, r)[0] & near), None)
-        if rival is not None and out.index(rival) > out.index(c):
-            out.remove(rival)
-            out.insert(out.index(c), rival)
-            rival.notes = "; ".join(filter(None, [rival.notes, f"preferred to {c.kind} at {c.target} (the same score): "
-                                                               f"this sensor's gyro shows a bias"]))
-    return out
-
-
-def _gyro_first(s: Subject, passing: list[Effect], threshold: float) -> list[Effect]:
-    """`passing` with each drift whose own gyro shows it (a heading turned under an unbiased gyro: its
-    integral's word, own_gyro_score, significant by itself) put before the model effects (a missing axis,
-    a moved limit) on the links around it: the orientations alone may fit an axis moving sample by sample
-    better than one rate, but only the drift explains what the gyro says of its own orientations, which
-    no joint of the model changes."""
-    out = list(passing)
-    for d in passing:
-        if d.kind != "heading_drift" or d.params.get("gyro_shares") or d.params.get("own_gyro_score", 0.0) <= threshold:
-            continue
-        near = _area(s, d)[1]
-        model = next((m for m in out[:out.index(d)] if m.model_effect and _area(s, m)[0] & near), None)
-        if model is not None:
-            out.remove(d)
-            out.insert(out.index(model), d)
-            d.notes = "; ".join(filter(None, [d.notes, f"preferred to {model.kind} at {model.target}: its own gyro "
-                                                       f"shows the turn (score {d.params['own_gyro_score']:.0f})"]))
-    return out
-
-
-def _offset_first(s: Subject, passing: list[Effect]) -> list[Effect]:
-    """`passing` with a misalignment of the links on either side of a missing axis put before the axis
-    where the axis' angle is mostly an offset (its mean beyond its rms about it): a constant angle is a
-    sensor's frame turned on its segment, which one to three parameters explain, and a joint's angle
-    comes and goes; fitted first, an axis takes the offset with the motion, and the frame's turn is
-    never named (a shank's frame turned about the knee's missing axis came back as that axis)."""
-    out = list(passing)
-    for m in passing:
-        if not isinstance(m, joints.MissingDof) or abs(m.params.get("angle_mean", 0.0)) <= m.params.get("angle_rms", 0.0):
-            continue
-        frame = next((c for c in out[out.index(m):] if c.kind == "misalignment"
-                      and c.target in (m.params["child"], m.params["parent"])), None)
-        if frame is not None:
-            out.remove(frame)
-            out.insert(out.index(m), frame)
-            why = (f"preferred to the missing axis at {m.target}, whose angle is mostly an offset "
-                   f"({math.degrees(m.params['angle_mean']):.1f} deg, about which it moves by "
-                   f"{math.degrees(m.angle_rms()):.1f})")
-            frame.notes = "; ".join(filter(None, [frame.notes, why]))
-    return out
-
-
 def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> list[Effect]:
     """The significant candidates of subject s that explain disjoint residuals, refitted on all the
     data, best first (empty when none is): the best plausible one, then, in the order of their
@@ -318,8 +82,9 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
             passing.append(c)
         elif c.score > threshold:
             c.notes = "; ".join(filter(None, [c.notes, f"not significant: {why}"]))
-    passing = _relevant(s, passing)
-    passing = _offset_first(s, _gyro_first(s, _biased_first(s, _simplest_first(s, passing)), threshold))
+    passing = preference.relevant(s, passing)
+    passing = preference.biased_first(s, preference.simplest_first(s, passing))
+    passing = preference.offset_first(s, preference.gyro_first(s, passing, threshold))
     chosen: list[tuple[Effect, Effect]] = []  # (the candidate, its refit)
     areas: list[tuple[set[str], set[str]]] = []
     waiting: list[tuple[set[str], set[str]]] = []  # the areas of candidates that wait for the next round
@@ -327,7 +92,7 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
         alone = (c.kind, c.target) in s.deferred
         if alone and chosen:
             continue
-        area = _area(s, c)
+        area = preference.area(s, c)
         # a candidate related to one chosen waits, and so does any weaker one related to it: else a weaker
         # neighbour would take the residual that the stronger, waiting one explains better
         if any(area[0] & near or reach & area[1] for reach, near in areas + waiting):
@@ -353,8 +118,8 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
         return []
     picked = {id(c) for c, _ in chosen}
     for (best, final), area in zip(chosen, areas):  # what else explains the same residual about as well
-        rivals = [c for c in passing if id(c) not in picked and c.kind == best.kind and c.score >= TIE * best.score
-                  and _area(s, c)[0] & area[1]]
+        rivals = [c for c in passing if id(c) not in picked and c.kind == best.kind
+                  and c.score >= preference.TIE * best.score and preference.area(s, c)[0] & area[1]]
         if rivals:
             final.notes = "; ".join(filter(None, [final.notes, "explained nearly as well by " + ", ".join(
                 f"{c.kind} at {c.target} (score {c.score:.0f} against {best.score:.0f})" for c in rivals)

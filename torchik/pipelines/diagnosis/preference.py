@@ -1,0 +1,138 @@
+"""Which of the significant candidates a round of the loop takes first, where the data score them alike
+and the physics does not: the relevant ones only (above their family's floor), the simplest of tied
+rivals, the drifting sensor whose gyro shows a bias, a drift its own gyro shows before a model effect,
+a sensor's turned frame before a missing axis whose angle is mostly an offset. Each takes the
+candidates best first and returns them reordered, noting on the one it moves why.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from ...method.kinematics import KinematicModel
+from . import elimination, joints
+from .effect import Effect
+from .subject import Subject
+
+TIE = 0.9  # a second candidate scoring this share of the best explains the data nearly as well
+
+
+def area(s: Subject, effect: Effect) -> tuple[set[str], set[str]]:
+    """The tracked links a candidate of subject s moves and its neighbourhood (elimination.reach and
+    neighbourhood), a missing axis's in the model that has it."""
+    links, urdf, model = s.current[0].links, s.urdf, s.model
+    if isinstance(effect, joints.MissingDof):
+        urdf = effect.augment(urdf)
+        model = KinematicModel.from_urdf(urdf, name=model.name, dtype=model.dtype)
+    return elimination.reach(effect, model, links), elimination.neighbourhood(effect, model, urdf, links)
+
+
+def relevant(s: Subject, passing: list[Effect]) -> list[Effect]:
+    """The candidates of `passing` at or above their family's floor (Effect.below_floor); the others are
+    recorded in s.negligible (the latest fit of each kind and target), noted "significant but negligible",
+    and never added: they are real to the data and matter to no one, and adding them would cost a round
+    of tracking and, fitted on what the larger effects leave, risk echoes."""
+    dt = float(torch.diff(s.current[0].time).median())
+    out = []
+    for c in passing:
+        why = c.below_floor(dt)
+        if not why:
+            out.append(c)
+            continue
+        c.notes = "; ".join(filter(None, [c.notes, f"significant but negligible: {why}"]))
+        s.negligible[(c.kind, c.target)] = c
+    for c in out:  # relevant now: what an earlier round found negligible of it is no longer the word
+        s.negligible.pop((c.kind, c.target), None)
+    return out
+
+
+def simplest_first(s: Subject, passing: list[Effect]) -> list[Effect]:
+    """`passing` (best first) with the best replaced by the simplest of its rivals: candidates of its
+    kind on related links (elimination.related: they explain the same residual) that score within TIE
+    of it with fewer parameters identified, the fewest first. Where the joints share a rotation
+    between several links (a spine whose joints have no axis along it), one sensor's offset shows on
+    its neighbours too, and a neighbour's fit that adds directions the joints nearly follow picks up
+    the rest of the residual with them: it scores about as well, with values no strap allows."""
+    if not passing:
+        return passing
+    best = passing[0]
+    near = area(s, best)[1]
+    rivals = [c for c in passing[1:] if c.kind == best.kind and c.n_params < best.n_params
+              and c.score >= TIE * best.score and area(s, c)[0] & near]
+    if not rivals:
+        return passing
+    simplest = min(rivals, key=lambda c: (c.n_params, -c.score))
+    simplest.notes = "; ".join(filter(None, [simplest.notes, f"preferred to {best.kind} at {best.target} (score "
+                                             f"{best.score:.0f} with {best.n_params} parameters against "
+                                             f"{simplest.score:.0f} with {simplest.n_params})"]))
+    return [simplest] + [c for c in passing if c is not simplest]
+
+
+TIED = 0.99  # two candidates scoring within 1 % of each other explain the data equally: the data cannot choose
+
+
+def biased_first(s: Subject, passing: list[Effect]) -> list[Effect]:
+    """`passing` with each drift its gyro shares put after a tied rival (a drift on a related link scoring
+    within TIED of it: a heading tied to a neighbour's by joints without a vertical axis turns one way
+    or the neighbour's the other, and the orientations cannot tell which) on a link whose own gyro shows
+    a bias among the candidates: a heading-free filter integrates its gyro's bias about the vertical
+    into the drift and leaves the rest in the gyro's stream (drift.HeadingDrift), so the biased
+    gyro is the drifting one."""
+    biased = {c.target for c in passing if c.kind == "gyro_bias"}
+    out = list(passing)
+    for c in passing:
+        if c.kind != "heading_drift" or c.target in biased:
+            continue
+        near = area(s, c)[1]
+        rival = next((r for r in out if r.kind == c.kind and r.target in biased and r.score >= TIED * c.score
+                      and c.score >= TIED * r.score and area(s, r)[0] & near), None)
+        if rival is not None and out.index(rival) > out.index(c):
+            out.remove(rival)
+            out.insert(out.index(c), rival)
+            rival.notes = "; ".join(filter(None, [rival.notes, f"preferred to {c.kind} at {c.target} (the same score): "
+                                                               f"this sensor's gyro shows a bias"]))
+    return out
+
+
+def gyro_first(s: Subject, passing: list[Effect], threshold: float) -> list[Effect]:
+    """`passing` with each drift whose own gyro shows it (a heading turned under an unbiased gyro: its
+    integral's word, own_gyro_score, significant by itself) put before the model effects (a missing axis,
+    a moved limit) on the links around it: the orientations alone may fit an axis moving sample by sample
+    better than one rate, but only the drift explains what the gyro says of its own orientations, which
+    no joint of the model changes."""
+    out = list(passing)
+    for d in passing:
+        if d.kind != "heading_drift" or d.params.get("gyro_shares") or d.params.get("own_gyro_score", 0.0) <= threshold:
+            continue
+        near = area(s, d)[1]
+        model = next((m for m in out[:out.index(d)] if m.model_effect and area(s, m)[0] & near), None)
+        if model is not None:
+            out.remove(d)
+            out.insert(out.index(model), d)
+            d.notes = "; ".join(filter(None, [d.notes, f"preferred to {model.kind} at {model.target}: its own gyro "
+                                                       f"shows the turn (score {d.params['own_gyro_score']:.0f})"]))
+    return out
+
+
+def offset_first(s: Subject, passing: list[Effect]) -> list[Effect]:
+    """`passing` with a misalignment of the links on either side of a missing axis put before the axis
+    where the axis' angle is mostly an offset (its mean beyond its rms about it): a constant angle is a
+    sensor's frame turned on its segment, which one to three parameters explain, and a joint's angle
+    comes and goes; fitted first, an axis takes the offset with the motion, and the frame's turn is
+    never named (a shank's frame turned about the knee's missing axis came back as that axis)."""
+    out = list(passing)
+    for m in passing:
+        if not isinstance(m, joints.MissingDof) or abs(m.params.get("angle_mean", 0.0)) <= m.params.get("angle_rms", 0.0):
+            continue
+        frame = next((c for c in out[out.index(m):] if c.kind == "misalignment"
+                      and c.target in (m.params["child"], m.params["parent"])), None)
+        if frame is not None:
+            out.remove(frame)
+            out.insert(out.index(m), frame)
+            why = (f"preferred to the missing axis at {m.target}, whose angle is mostly an offset "
+                   f"({math.degrees(m.params['angle_mean']):.1f} deg, about which it moves by "
+                   f"{math.degrees(m.angle_rms()):.1f})")
+            frame.notes = "; ".join(filter(None, [frame.notes, why]))
+    return out
