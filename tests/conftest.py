@@ -19,6 +19,10 @@ DATA = SHARED / "data"
 REFERENCE = SHARED / "reference-models"
 
 
+# a test (or a parameter) that reads ../shared/data: skipped, saying so, on a clone without it
+needs_shared = pytest.mark.skipif(not DATA.is_dir(), reason=f"{DATA} absent: ../shared is not beside this checkout")
+
+
 def shared_file(relative: str | Path, root: Path = DATA) -> Path:
     """A file of ../shared/data (`relative` to it, e.g. "c3d/HC002D02.c3d"; or to `root`), as an absolute
     path; the calling test is skipped, with the path named, when it is absent."""
