@@ -132,7 +132,10 @@ def run_case(case: dict, model, urdf: str, links, args) -> dict:
                 orientation_error_deg=info["orientation_error_deg"],
                 injected=[dict(family=i.family, targets=i.targets, sizes=[float(x) for x in i.sizes], unit=i.unit)
                           for i in injected],
-                kept=[e.summary() for e in d.effects], negligible=[e.summary() for e in d.negligible],
+                kept=[e.summary() for e in d.effects],
+                contribution_deg=[e.params.get("contribution_deg") for e in d.effects],
+                invisible=[f"{e.kind} at {e.target} ({e.params['contribution_deg']:.2f} deg)" for e in d.negligible
+                           if "contribution_deg" in e.params], negligible=[e.summary() for e in d.negligible],
                 rejected=[f"{e.kind} at {e.target}: {e.notes}" for e in d.rejected], stop=d.stop,
                 mnte_before=d.before.overall["mnte"], mnte_after=d.after.overall["mnte"],
                 **judge(injected, d.effects, seen))

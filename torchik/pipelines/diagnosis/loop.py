@@ -22,8 +22,10 @@ residuals, repeat.
         longer pay for their parameters, as echoes of it (elimination.py)
     until no candidate is significant, or `max_effects` rounds are done; Diagnosis.stop says which
     (STOPS), and Diagnosis.noise how much of what remains the noise accounts for. Then every kept
-    effect is re-scored with all the others in place once more, those that share a residual are fitted
-    jointly (jointfit.py), and those the joint fit puts below their floor become negligible.
+    effect is re-scored with all the others in place once more, those seen only in the orientations
+    that change nothing a report shows by a degree become negligible (contribution.py), those that
+    share a residual are fitted jointly (jointfit.py), and those the joint fit puts below their floor
+    become negligible too.
 
 Candidates the data cannot identify (the joints follow them, or there is no gyro) come back
 without a fit and are listed, from the first round, in Diagnosis.unobservable; so are the turns of
@@ -43,7 +45,7 @@ import torch
 
 from ...io.recording import Recording
 from ...method.kinematics import KinematicModel
-from . import elimination, frames, jointfit, joints, placement, posture, preference, refinement
+from . import contribution, elimination, frames, jointfit, joints, placement, posture, preference, refinement
 from .analysis import DEFAULT_GAIN, joint_summary, link_summary, noise_floor
 from .candidates import KINDS
 from .effect import SIGNIFICANT, Effect
@@ -329,6 +331,8 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
         elimination.track([], found, links, gain, progress, max_samples)
         elimination.eliminate(found, links, gain, threshold, progress, max_samples, say,
                               lambda s, key: errors(*s.current).overall[key], WORSE)
+    if eliminate:  # what is left must change what a report shows
+        contribution.drop_invisible(subjects, links, gain, progress, max_samples, say)
     fits = jointfit.refit(subjects, links, gain, progress, max_samples) if joint else [None] * len(subjects)
     _drop_negligible(subjects, links, gain, progress, max_samples)
     for s in subjects:

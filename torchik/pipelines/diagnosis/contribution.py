@@ -1,0 +1,92 @@
+"""What each kept effect changes in what a report shows, and the effects that change nothing of it.
+
+Significance says the data show an effect; its family's floor (Effect.below_floor) says its size
+matters. An effect seen only in the orientations (a sensor's turned frame, a heading drift, a missing
+axis, a moved limit, a late sensor) can pass both and still change nothing anyone reports: the
+joints follow it, or it acts on a few samples, or its size is spread over a chain of small joints.
+Its contribution is measured as what it changes once tracked: the subject with every kept effect
+against the subject without that one (elimination.variants), compared on
+
+- the estimated joint angles and the base's orientation (what a gait report shows), and
+- the orientation residual each tracked link is left with (what the tracker could not follow),
+
+each as an rms over the time after TRANSIENT, the largest over joints and links. Under VISIBLE
+(1 deg, the misalignment's floor: joint angles are reported to about a degree) the effect is listed
+as significant but negligible and taken out. The gyro's families (a bias, a scale error, a stream's
+delay) are judged on the gyro's own stream, which the tracker uses only through its gain, and keep
+their floors in rate units.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable, Sequence
+
+import torch
+
+from ...method.kinematics import KinematicModel
+from . import elimination
+from .subject import Subject, analyse_subjects
+
+VISIBLE = 1.0  # deg
+TRANSIENT = 2.0  # s, the tracker's start left out
+SEEN_IN_ORIENTATIONS = ("misalignment", "heading_drift", "missing_dof", "joint_limit", "sensor_delay")
+
+
+def _rms(x: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
+    """[...] the rms over the kept rows of x [T,...] (NaN rows left out)."""
+    x = torch.where(keep.reshape(-1, *([1] * (x.dim() - 1))) & x.isfinite(), x, torch.nan)
+    return x.square().nanmean(0).sqrt()
+
+
+def change(with_: Subject, without: Subject, transient: float = TRANSIENT) -> tuple[float, str]:
+    """deg, and where: the largest rms change, after `transient` seconds, of a joint angle (the joints
+    both models have), of the base's orientation, or of a link's residual angle, between two tracked
+    subjects of the same recording (one with an effect, one without)."""
+    (a, i), (b, j) = with_.current, without.current
+    keep = a.time >= a.time[0] + (transient if float(a.time[-1] - a.time[0]) > 2 * transient else 0.0)
+    shared = [n for n in a.model.joint_names if n in b.model.joint_names]
+    sa = a.s[:, i, [a.model.joint_names.index(n) for n in shared]]
+    sb = b.s[:, j, [b.model.joint_names.index(n) for n in shared]]
+    joints = torch.rad2deg(_rms(sa - sb, keep))  # [n]
+    Ra, Rb = a.trajectory.base_rotation[:, i], b.trajectory.base_rotation[:, j]  # [T,3,3]
+    cos = ((Ra.transpose(-1, -2) @ Rb).diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2
+    base = torch.rad2deg(_rms(torch.acos(cos.clamp(-1.0, 1.0)), keep))
+    angle = lambda an, k: torch.where(an.valid[:, k], torch.asin(an.r[:, k].norm(dim=-1).clamp(max=1.0)),  # noqa: E731
+                                      torch.nan)  # [T,L]
+    links = torch.rad2deg(_rms(angle(a, i) - angle(b, j), keep))  # [L]
+    found = [(float(v), f"the {name} angle") for name, v in zip(shared, joints.tolist())]
+    found += [(float(base), "the base's orientation")]
+    found += [(float(v), f"the {name} residual") for name, v in zip(a.links, links.tolist())]
+    found = [f for f in found if math.isfinite(f[0])]
+    return max(found) if found else (0.0, "nothing")
+
+
+def drop_invisible(subjects: Sequence[Subject], links, gain: float, progress: bool, max_samples: int,
+                   say: Callable[[str], None]) -> None:
+    """Move the kept effects seen only in the orientations (SEEN_IN_ORIENTATIONS) whose contribution
+    (`change`) is under VISIBLE to the subject's negligible ones; the subjects that lose one are
+    rebuilt from their source without them and tracked again."""
+    found = [v for s in subjects if s.effects for v in elimination.variants(s, s.effects, every=True)
+             if v[1].kind in SEEN_IN_ORIENTATIONS]
+    if not found:
+        return
+    elimination.track([], found, links, gain, progress, max_samples)
+    moved: dict[int, Subject] = {}
+    for s, effect, v in found:
+        size, where = change(s, v)
+        effect.params["contribution_deg"] = size
+        if size >= VISIBLE:
+            continue
+        why = (f"significant but negligible: tracked with and without it, nothing a report shows changes by "
+               f"{VISIBLE:g} deg (at most {size:.2f} deg rms, {where})")
+        effect.notes = "; ".join(filter(None, [effect.notes, why]))
+        s.negligible[(effect.kind, effect.target)] = effect
+        s.steps = [st for st in s.steps if st.effect is not effect]
+        moved[id(s)] = s
+        say(f"{effect.kind} at {effect.target} taken out as negligible ({why})")
+    for s in moved.values():
+        assert s.source is not None, "set by the loop"
+        s.recording, s.urdf = elimination.without(*s.source, s.effects, None)
+        s.model = KinematicModel.from_urdf(s.urdf, name=s.model.name, dtype=s.model.dtype)
+    analyse_subjects(list(moved.values()), links, gain, progress, max_samples)
