@@ -39,8 +39,10 @@ def step_problems(model, links, batch: int, seed: int, structured: bool = True, 
     w_o = (torch.rand(batch, len(links), generator=gen, **kw) > 0.1).to(torch.float64)
     w_p = torch.ones(batch, 1, **kw)
     damping = 1e-9
-    H, g = normal_equations(task, kin.joint_axes, kin.jacobian, v_p, v_o, damping, w_p, w_o, hessian=not structured)
-    tree = TreeHessian.from_targets(JointTree.build(model, links), kin.joint_axes, damping, 1, w_o, w_p) \
+    H, g = normal_equations(task, kin.joint_axes, kin.jacobian, v_p, v_o, damping, w_position=w_p, w_orientation=w_o,
+                            hessian=not structured)
+    tree = TreeHessian.from_targets(JointTree.build(model, links), kin.joint_axes, damping, 1, w_position=w_p,
+                                    w_orientation=w_o) \
         if structured else None
     dt = torch.full((batch, 1), 0.01, **kw)
     lb, ub = velocity_bounds(s, model.lower, model.upper, LimitSettings(), dt)

@@ -164,9 +164,9 @@ def test_icub_on_the_tree_hands_its_active_coupled_rows_to_the_backend_from_the_
         monkeypatch.setattr(active_set_module, "DENSE_BELOW", 1)
     reused: list[bool] = []
 
-    def spied(H, problem, sets, budget, tolerance, factor=None):
+    def spied(H, problem, sets, budget, tolerance, factor=None, **rest):
         reused.append(factor is not None)
-        return active_set_module.active_set(H, problem, sets, budget, tolerance, factor)
+        return active_set_module.active_set(H, problem, sets, budget, tolerance, factor, **rest)
 
     monkeypatch.setattr(batched_module, "active_set", spied)
     sequence = targets_from_motion(model, periodic_motion(model, 0.8, 100, batch=40, seed=1), links)

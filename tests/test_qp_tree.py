@@ -28,8 +28,9 @@ def test_the_tree_hessian_is_the_normal_matrix_of_the_step(name):
     w_o = (torch.rand(B, len(links), generator=g, dtype=torch.float64) > 0.2).double()  # some targets dropped
     w_p = torch.ones(B, 1, dtype=torch.float64)
     v_p, v_o = torch.zeros(B, 1, 3, dtype=torch.float64), torch.zeros(B, len(links), 3, dtype=torch.float64)
-    H, _ = normal_equations(task, kin.joint_axes, kin.jacobian, v_p, v_o, 1e-6, w_p, w_o)
-    tree = TreeHessian.from_targets(JointTree.build(model, links), kin.joint_axes, 1e-6, 1, w_o, w_p)
+    H, _ = normal_equations(task, kin.joint_axes, kin.jacobian, v_p, v_o, 1e-6, w_position=w_p, w_orientation=w_o)
+    tree = TreeHessian.from_targets(JointTree.build(model, links), kin.joint_axes, 1e-6, 1, w_position=w_p,
+                                    w_orientation=w_o)
     assert torch.allclose(tree.dense(), H, atol=1e-12)
     x = torch.randn(B, 6 + model.n_dof, 3, generator=g, dtype=torch.float64)
     assert torch.allclose(tree.matvec(x), H @ x, atol=1e-12)

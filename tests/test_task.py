@@ -25,7 +25,7 @@ def test_structured_normal_equations_equal_the_dense_ones(name, position_links, 
     structure = TaskStructure.build(model, orientation_links, position_links)
     kin = model(p, R, s, orientation_links, jacobian=structure.position is not None, jacobian_links=structure.position,
                 joint_axes=True)  # Jacobians of the position links off the base only
-    H, g = normal_equations(structure, kin.joint_axes, kin.jacobian, v_p, v_o, 1e-3, w_p, w_o)
+    H, g = normal_equations(structure, kin.joint_axes, kin.jacobian, v_p, v_o, 1e-3, w_position=w_p, w_orientation=w_o)
 
     J = torch.cat((model(p, R, s, position_links).jacobian[:, :, :3],
                    model(p, R, s, orientation_links).jacobian[:, :, 3:]), 1)

@@ -25,13 +25,26 @@ from .io import (
     save_trajectory,
 )
 from .method import so3
+from .method.constraints import ContactLimit, Limit
 from .method.kinematics import KinematicModel, LinearLimits, LinkKinematics
+from .method.kinematics.mass import centre_of_mass
 from .method.limits import LimitSettings
 from .method.metrics import angular_velocity_rmse, mnte, orientation_error
 from .method.models import MODELS, TRACKED_LINKS, HumanSubject, load_model
 from .method.settings import TrackerSettings
 from .method.state import State, StepDiagnostics, TargetSequence, Trajectory
 from .method.targets import Targets
+from .method.tasks import (
+    CentreOfMassTask,
+    ContactTask,
+    OrientationTask,
+    PositionTask,
+    PostureTask,
+    RelativePositionTask,
+    StepContext,
+    Task,
+    TaskTerms,
+)
 from .method.tracker import DynamicalIK
 from .pipelines.diagnosis.loop import diagnose
 from .pipelines.memory import keep_freed_memory
@@ -45,10 +58,13 @@ __all__ = [
     "__version__",
     # models and kinematics
     "load_model", "MODELS", "TRACKED_LINKS", "HumanSubject", "KinematicModel", "LinearLimits", "LinkKinematics",
-    "so3",
+    "so3", "centre_of_mass",
     # the tracker
     "DynamicalIK", "TrackerSettings", "LimitSettings", "State", "StepDiagnostics", "Targets", "TargetSequence", "Trajectory",
     "mnte", "angular_velocity_rmse", "orientation_error",
+    # tasks and limits beyond the paper's
+    "Task", "TaskTerms", "StepContext", "OrientationTask", "PositionTask", "PostureTask", "CentreOfMassTask",
+    "RelativePositionTask", "ContactTask", "Limit", "ContactLimit",
     # data
     "read", "Recording", "load_recording", "save_recording", "save_trajectory", "load_map", "map_recording",
     "recording_targets", "scenario", "SCENARIOS", "periodic_motion", "targets_from_motion",

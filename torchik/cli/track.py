@@ -9,16 +9,31 @@ import contextlib
 import dataclasses
 import functools
 import json
+import math
 import sys
 import time
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from ..errors import InputError
 from ..io.plausible import Plausibility
 from ..method.models import MODELS
 from ..method.qp import BACKENDS
 from ..method.settings import SCHEMES, TrackerSettings
+from ..pipelines.contacts import (
+    CONTACT_WEIGHT,
+    FEET,
+    HEIGHT,
+    SPEED,
+    CentreOfMassOffsets,
+    LinkPositions,
+    contact_mask,
+    foot_slide,
+    slide_series,
+    step_tasks,
+)
 from ..pipelines.track import SETTLE
 from ..synthetic.scenarios import SCENARIOS
 from .common import (
@@ -72,6 +87,16 @@ def add_parser(subparsers) -> None:
     track.add_argument("--position-targets", nargs="+", metavar="LINK",
                        help="links with position targets besides the base (e.g. RightHand LeftHand RightFoot LeftFoot): "
                             "the recording's segment origins, as MVNX, BVH and C3D files give them")
+    track.add_argument("--contacts", nargs="+", metavar="LINK",
+                       help="hold these links still while on the ground (auto: the feet), from their height and "
+                            "speed in a first run without; the report gives their slide before and after")
+    track.add_argument("--contact-weight", type=_contact_weight, default=CONTACT_WEIGHT, metavar="WEIGHT",
+                       help=f"the contacts' weight against the targets' 1 (default {CONTACT_WEIGHT:g}), or exact: held "
+                            "as equality rows of the QP, whatever the targets say")
+    track.add_argument("--com", type=positive, metavar="WEIGHT",
+                       help="hold the centre of mass over the middle of the feet with this weight (a balance prior)")
+    track.add_argument("--posture", type=positive, metavar="WEIGHT",
+                       help="pull the joints towards the zero posture with this weight (1e-3: what no target sees)")
     track.add_argument("--duration", type=positive, default=10.0, help="scenario length in seconds (default 10)")
     track.add_argument("--rate", type=positive, default=100.0, help="scenario rate in Hz (default 100)")
     track.add_argument("--seed", type=int, default=0)
@@ -143,15 +168,29 @@ def run(args: argparse.Namespace) -> int:
     if args.position_targets:
         position_links = (model.base_link, *[name for name in args.position_targets if name != model.base_link])
     bounds = Plausibility(max_angular_velocity=args.max_angular_velocity, max_linear_velocity=args.max_linear_velocity)
+    common = dict(progress=not args.quiet, position_links=position_links, plausibility=bounds, settle=args.settle)
+    contacts = _contact_links(args, model)
+    before = None
+    if contacts:  # where the feet are on the ground, from a run without the contacts
+        before = LinkPositions(model, contacts)
+        track_chunks(model, recording, links, settings, [before], **common)
+    masks = {link: contact_mask(before.position[:, k], before.time) for k, link in enumerate(contacts)} if before else {}
+    tasks, limits = step_tasks(model, args.model, contacts, masks, args.com, args.posture, args.contact_weight)
     with _outputs(args, model, subject, links, position_links) as outputs:  # written as the run goes
-        summary, implausible, interrupted = track_chunks(model, recording, links, settings, outputs.values(),
-                                                         progress=not args.quiet, position_links=position_links,
-                                                         plausibility=bounds, settle=args.settle)
+        after, com = LinkPositions(model, contacts), CentreOfMassOffsets(model, FEET[args.model])
+        measured = [after] if contacts else []
+        summary, implausible, interrupted = track_chunks(model, recording, links, settings,
+                                                         [*outputs.values(), *measured, *([com] if args.com else [])],
+                                                         tasks=tasks, constraints=limits, **common)
         report = summary.report(settings, implausible, interrupted)
+        if tasks or limits:
+            report["tasks"] = _task_report(args, contacts, masks, before, after, com)
         report.update(source=source, left_to_model=left_out, device=str(device), wall_time_s=time.perf_counter() - start)
         if not args.quiet:  # beside a report on standard output, on standard error
             _print_report(report, source, model.name or Path(model.source).stem,
                           sys.stderr if args.report == "-" else sys.stdout)
+        if "rrd" in outputs and report.get("tasks"):
+            _log_tasks(outputs["rrd"], contacts, masks, after, com if args.com else None)
         fault = summary.fault(report, args.max_failed)
         if fault:  # the outputs are left uncommitted: nothing is written
             print(f"torchik track: {fault}", file=sys.stderr)
@@ -235,6 +274,55 @@ def _whole(recording):
     return recording if isinstance(recording, Recording) else recording.read()
 
 
+def _log_tasks(rrd, contacts, masks, after, com) -> None:
+    """The added tasks over time in the rerun recording, under tasks/: each contact's switch and
+    slide (mm, from where its phase began), the centre of mass' offset from the feet (m)."""
+    from rerun import escape_entity_path_part as escape
+
+    time = after.time
+    for k, link in enumerate(contacts):
+        on = masks[link][:len(time)]
+        series = np.stack((on.astype(float), slide_series(after.position[:, k], on)), axis=1)
+        rrd.log_series(f"tasks/{escape(f'contact {link}')}", time, series, ["on", "slide (mm)"])
+    if com is not None and com.parts:
+        rrd.log_series(f"tasks/{escape('centre of mass over the feet')}", com.time, com.offset, ["offset (m)"])
+
+
+def _contact_weight(text: str) -> float:
+    """--contact-weight: a positive number, or exact (inf: equality rows)."""
+    return math.inf if text == "exact" else positive(text)
+
+
+def _contact_links(args: argparse.Namespace, model) -> tuple[str, ...]:
+    """The links of --contacts (auto: the model's feet)."""
+    if not args.contacts:
+        return ()
+    feet = FEET[args.model]
+    links = tuple(dict.fromkeys(link for name in args.contacts for link in (feet if name == "auto" else (name,))))
+    unknown = [link for link in links if link not in model.link_names]
+    if unknown:
+        raise InputError(f"--contacts: model {model.name!r} has no link {unknown[0]!r}; its feet: {', '.join(feet)}")
+    return links
+
+
+def _task_report(args: argparse.Namespace, contacts, masks, before, after, com) -> dict:
+    """Each added task's error: a contact's slide per phase before (the run without) and after (mm),
+    the centre of mass' horizontal distance from the middle of the feet (m), the posture's weight."""
+    out: dict = {}
+    for k, link in enumerate(contacts):
+        on = masks[link][:len(after.time)]
+        out[f"contact {link}"] = dict(contact_share=float(on.mean()) if len(on) else None,
+                                      slide_before=foot_slide(before.position[:len(on), k], on),
+                                      slide_after=foot_slide(after.position[:, k], on))
+    if args.com:
+        offset = com.offset
+        out["centre of mass over the feet"] = dict(weight=args.com, median_offset_m=float(np.nanmedian(offset))
+                                                   if len(offset) else None)
+    if args.posture:
+        out["posture"] = dict(weight=args.posture)
+    return out
+
+
 def _write_outputs(args: argparse.Namespace, report: dict, outputs: dict) -> None:
     """The report (a file, or - for standard output), then the trajectory (--out) and the rerun
     recording (--rrd) committed."""
@@ -275,6 +363,16 @@ def _print_report(report: dict, source: str, model_name: str, file=sys.stdout) -
           f"(implausible samples {report['implausible_samples']}), projected {report['projected_targets']}")
     if report["steps_without_targets"]:
         print(f"    {report['steps_without_targets']} steps without any target: their MNTE and RMSE are NaN")
+    for name, task in report.get("tasks", {}).items():
+        if name.startswith("contact "):
+            b, a = task["slide_before"], task["slide_after"]
+            if a["phases"]:
+                print(f"    {name}: {100 * task['contact_share']:.0f} % of the time, {a['phases']} phases; slide per "
+                      f"phase {b['mean_mm']:.1f} mm without (max {b['max_mm']:.1f}), {a['mean_mm']:.1f} mm with "
+                      f"(max {a['max_mm']:.1f})")
+            else:
+                print(f"    {name}: never on the ground (lower than {HEIGHT * 1e3:.0f} mm above its lowest, slower "
+                      f"than {SPEED:g} m/s)")
     if report["left_to_model"]:
         print(f"    left to the model (no segment in the recording): {', '.join(report['left_to_model'])}")
     if report["failed_steps"] or len(report["segments"]) > 1:

@@ -194,7 +194,8 @@ class WholeBodyIK(InstantaneousIK):
             active = active & ~converged
             if iteration == self.max_iterations or not bool(active.any()):
                 break
-            H, g = normal_equations(self._task, kin.joint_axes, kin.jacobian, r_p, r_o, self.damping, *weights)
+            H, g = normal_equations(self._task, kin.joint_axes, kin.jacobian, r_p, r_o, self.damping,
+                                    w_position=weights[0], w_orientation=weights[1])
             lb_s, ub_s = _increment_bounds(s, model.lower, model.upper)
             h = None if G is None else b - s @ A.T
             delta = self.backend.solve(QPProblem(H, g, torch.cat((-free, lb_s), 1), torch.cat((free, ub_s), 1), G, h)).x

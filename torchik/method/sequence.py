@@ -28,12 +28,12 @@ class Tracker(Protocol):
     def initial_state(self, targets: Targets) -> State: ...
 
     def step(self, targets: Targets, dt: float | torch.Tensor | None = None,
-             checked: bool = False) -> tuple[State, StepDiagnostics]: ...
+             checked: bool = False, sample: int | None = None) -> tuple[State, StepDiagnostics]: ...
 
 
 def run_parts(tracker: Tracker, parts: Iterable[TargetSequence], time: torch.Tensor, initial: State | None = None,
               progress: bool | None = None, interruptible: bool = False,
-              settle: float = 0.0) -> Generator[Trajectory, None, None]:
+              settle: float = 0.0, held: bool = False) -> Generator[Trajectory, None, None]:
     """Track the sequence whose time stamps are `time` [T], its targets given in consecutive `parts`
     (their lengths adding up to T), from `initial` (default: `initial_state` of the first targets,
     or with `settle` > 0 seconds, `settled_state` on them: at rest in their posture, without the
@@ -43,7 +43,9 @@ def run_parts(tracker: Tracker, parts: Iterable[TargetSequence], time: torch.Ten
     (jitter, gaps) their own. progress: a bar once the run has lasted a second (None: on runs of
     over 20 000 subject-steps). interruptible: Ctrl-C (KeyboardInterrupt, while stepping or while
     `parts` makes the next part) stops the run; the last part yielded then holds the steps done of
-    its part, perhaps none, with `interrupted` True. Before the first step, KeyboardInterrupt still rises."""
+    its part, perhaps none, with `interrupted` True. Before the first step, KeyboardInterrupt still rises.
+    held: every step tracks the first sample held still (`settled_state`): the tasks with inputs per
+    sample read that sample's."""
     T = len(time)
     if T == 0:
         raise InputError("the sequence is empty")
@@ -53,6 +55,7 @@ def run_parts(tracker: Tracker, parts: Iterable[TargetSequence], time: torch.Ten
         raise InputError("sequence.time must be strictly increasing")
     bar = None
     done, steps, buffer, last = 0, None, None, None  # last: the latest step's (state, diagnostics)
+    sample = (lambda k: 0) if held else (lambda k: k)  # noqa: E731
     try:
         for part in parts:
             if not 0 < len(part) <= T - done:
@@ -70,7 +73,7 @@ def run_parts(tracker: Tracker, parts: Iterable[TargetSequence], time: torch.Ten
             buffer = TrajectoryBuffer(part.time, *last) if last is not None else None
             checked = clean_steps(part.position, part.linear_velocity, part.rotation, part.angular_velocity).tolist()
             for k in range(len(part)):
-                last = tracker.step(part[k], steps(done + k), checked[k])
+                last = tracker.step(part[k], steps(done + k), checked[k], sample=sample(done + k))
                 if buffer is None:
                     buffer = Trajectory.preallocated(part.time, *last)
                 buffer.put(*last)
@@ -104,7 +107,7 @@ def settled_state(tracker: Tracker, targets: Targets, seconds: float) -> State:
     still = TargetSequence(tracker.dt * torch.arange(n, dtype=targets.position.dtype, device=targets.position.device),
                            held(targets.position), torch.zeros_like(held(targets.linear_velocity)),
                            held(targets.rotation), torch.zeros_like(held(targets.angular_velocity)))
-    run = next(iter(run_parts(tracker, [still], still.time)))
+    run = next(iter(run_parts(tracker, [still], still.time, held=True)))
     return State(run.base_position[-1], run.base_rotation[-1], run.joint_positions[-1],
                  torch.zeros_like(run.velocity[-1]))
 

@@ -8,6 +8,7 @@ from typing import NamedTuple
 
 import torch
 
+from .constraints import stacked_rows
 from .kinematics import KinematicModel
 from .limits import LinearRows, linear_limit_bounds, velocity_bounds
 from .metrics import orientation_error
@@ -18,6 +19,7 @@ from .settings import TrackerSettings
 from .step_kinematics import StepKinematics, given
 from .structure import BatchSetup, StepStructure
 from .task import normal_equations
+from .tasks import StepContext
 
 Weights = tuple[torch.Tensor | None, torch.Tensor | None]  # position [B,n_p], orientation [B,n_o]; None: all 1
 
@@ -32,11 +34,13 @@ class StepTask(NamedTuple):
 
 def step_task(model: KinematicModel, structure: StepStructure, settings: TrackerSettings, batch: BatchSetup,
               s: torch.Tensor, at: Evaluation, kin: StepKinematics, dt: float | torch.Tensor,
-              weights: Weights = (None, None)) -> StepTask:
+              weights: Weights = (None, None), context: StepContext | None = None) -> StepTask:
     """Residuals r against `at`'s targets, corrected velocities v* = v + K r, the normal equations of
     ||v* - J nu||^2 + lambda ||nu||^2 (H in the tree's structured form, and None, when the batch
     solves on it), the joint limits as velocity bounds and the coupled limits as rows, for the
-    joints s [B,n] and the time step dt (a float or [B,1])."""
+    joints s [B,n] and the time step dt (a float or [B,1]); then each further task's normal
+    equations added (structure.tasks) and each further limit's rows (structure.limits), which
+    `context` (the state, dt and sample they read) is for."""
     x = at.residual_targets
     r_p = position_residual(x.position, kin.position)
     r_o = orientation_residual(x.rotation, kin.rotation)
@@ -44,13 +48,22 @@ def step_task(model: KinematicModel, structure: StepStructure, settings: Tracker
     v_o = corrected_velocity(at.angular_velocity, r_o, structure.orientation_gain)
     damping = settings.damping
     objective = normal_equations(structure.task, kin.joint_axes, kin.position_jacobian, v_p, v_o, damping,
-                                 weights[0], weights[1], hessian=not batch.structured)
+                                 w_position=weights[0], w_orientation=weights[1], hessian=not batch.structured)
     tree = TreeHessian.from_targets(given(structure.tree), kin.joint_axes, damping, r_p.shape[1],
-                                    weights[1], weights[0]) if batch.structured else None
+                                    w_position=weights[0], w_orientation=weights[1]) if batch.structured else None
     bounds = velocity_bounds(s, model.lower, model.upper, settings.limits, dt, batch.base_bounds)
     rows = _coupled_rows(model, settings, batch, s, dt)
-    return StepTask(r_p, r_o, QPProblem(objective.H, objective.g, bounds.lower, bounds.upper,
-                                        rows.G if rows else None, rows.h if rows else None, tree))
+    H, g, equalities = objective.H, objective.g, None
+    if structure.tasks or structure.limits:
+        assert context is not None, "a step with tasks or limits of its own is given their context"
+        for task in structure.tasks:  # one call per task, each batched: a handful, not one per link
+            H_i, g_i = task.normal_equations(context)
+            H, g = given(H) + H_i, g + g_i
+        rows = stacked_rows(([rows] if rows else []) + [r for x in structure.limits if (r := x.rows(context))])
+        equalities = stacked_rows([e for x in structure.limits if (e := x.equalities(context)) is not None])
+    return StepTask(r_p, r_o, QPProblem(H, g, bounds.lower, bounds.upper, rows.G if rows else None,
+                                        rows.h if rows else None, tree, equalities.G if equalities else None,
+                                        equalities.h if equalities else None))
 
 
 def _coupled_rows(model: KinematicModel, settings: TrackerSettings, batch: BatchSetup, s: torch.Tensor,

@@ -9,11 +9,13 @@ from typing import Any, ClassVar
 import torch
 
 from ..errors import InputError
+from .constraints import Limit
 from .kinematics import KinematicModel, LinkKinematics, LinkSelection
 from .limits import Bounds, base_velocity_bounds
 from .qp import BatchedBackend, JointTree, QPBackend
 from .settings import TrackerSettings
 from .task import TaskStructure
+from .tasks import Task
 
 
 @dataclass(frozen=True)
@@ -26,7 +28,9 @@ class StepStructure:
     when a position target is off the base link, or the model has no joint); rotations_only: the
     step needs link rotations and joint axes only (the paper's targets: orientations, and the base
     position); position_gain [n_p,1], orientation_gain [n_o,1]: K per target; base_selection: the
-    base link alone (a kinematics call that only needs the joint axes).
+    base link alone (a kinematics call that only needs the joint axes); tasks, limits: those beyond
+    the paper's targets and the model's limits (tasks.py, constraints.py), which make the step dense
+    (no tree).
     """
 
     selection: LinkSelection
@@ -39,10 +43,12 @@ class StepStructure:
     position_gain: torch.Tensor
     orientation_gain: torch.Tensor
     base_selection: LinkSelection
+    tasks: tuple[Task, ...] = ()
+    limits: tuple[Limit, ...] = ()
 
     @classmethod
     def build(cls, model: KinematicModel, orientation_links: tuple[str, ...], position_links: tuple[str, ...],
-              settings: TrackerSettings) -> "StepStructure":
+              settings: TrackerSettings, tasks: tuple[Task, ...] = (), limits: tuple[Limit, ...] = ()) -> "StepStructure":
         links = tuple(dict.fromkeys(position_links + orientation_links))
         selection = model.select(links)  # raises UnknownLinkError for a bad name
         task = TaskStructure.build(model, orientation_links, position_links)
@@ -59,12 +65,12 @@ class StepStructure:
         # velocity is then its own block of H) and a joint to eliminate; otherwise the batched
         # backend works densely.
         tree = JointTree.build(model, orientation_links) \
-            if set(position_links) <= {model.base_link} and model.n_dof > 0 else None
+            if set(position_links) <= {model.base_link} and model.n_dof > 0 and not tasks else None
         return cls(selection, model.select(orientation_links) if orientation_links else None,
                    torch.tensor([index[n] for n in position_links], **long),
                    torch.tensor([index[n] for n in orientation_links], **long), task, tree,
                    task.position is None and len(orientation_links) > 0, gains[0], gains[1],
-                   model.select((model.base_link,)))
+                   model.select((model.base_link,)), tuple(tasks), tuple(limits))
 
 
 @dataclass(frozen=True)

@@ -82,7 +82,7 @@ class TaskStructure:
 
 
 def normal_equations(structure: TaskStructure, joint_axes: torch.Tensor, position_jacobian: torch.Tensor | None,
-                     v_position: torch.Tensor, v_orientation: torch.Tensor, damping: float,
+                     v_position: torch.Tensor, v_orientation: torch.Tensor, damping: float, *,
                      w_position: torch.Tensor | None = None, w_orientation: torch.Tensor | None = None,
                      hessian: bool = True) -> Objective:
     """H [B,N,N] and g [B,N] of min ||v* - J nu||^2 + damping ||nu||^2, N = 6 + n.

@@ -37,6 +37,7 @@ import torch
 
 from ..errors import InputError
 from .captured import CapturedStep, Replayed
+from .constraints import CoupledLimits, JointLimits, Limit, split_limits
 from .integrate import integrate, orthonormalize
 from .invariant import broken_subjects
 from .kinematics import KinematicModel
@@ -49,6 +50,7 @@ from .step_kinematics import StepKinematics, step_kinematics
 from .step_task import step_task, tracking_errors
 from .structure import BatchSetup, StepStructure
 from .targets import Targets, check_targets, clean_targets
+from .tasks import OrientationTask, PositionTask, StepContext, Task, split_tasks
 
 
 class DynamicalIK:
@@ -59,20 +61,50 @@ class DynamicalIK:
     TrackerSettings, and any of its fields as keywords to change them (`position_gain=30.0`,
     `dt=1/120`, `scheme="paper"`, `backend="batched"` or a configured QPBackend, ...).
     `step(..., dt=...)` may vary the time step (jittered timestamps).
+
+    tasks: the step's tasks (tasks.py). The paper's, `OrientationTask(links)` and
+    `PositionTask(links)`, may stand for orientation_links and position_links (their gains, when
+    given, for the settings'); any other (a centre of mass, a contact, a posture, a relative
+    position, one of your own) is added to them, and the step then solves densely. constraints:
+    limits beyond the model's joint and coupled limits (constraints.py: a contact held exactly),
+    which always hold (the settings' `limits` say how the joint limits slow the joints). `tasks` and
+    `constraints` list them all afterwards, the paper's and the model's first.
     """
 
-    def __init__(self, model: KinematicModel, orientation_links: Sequence[str], position_links: Sequence[str] | None = None,
-                 settings: TrackerSettings | None = None, **changes):
+    def __init__(self, model: KinematicModel, orientation_links: Sequence[str] | None = None,
+                 position_links: Sequence[str] | None = None, settings: TrackerSettings | None = None,
+                 tasks: Sequence[Task] = (), constraints: Sequence[Limit] = (), **changes):
+        orientation, position, extra_tasks = split_tasks(tasks)
+        for task, name in ((orientation, "orientation_gain"), (position, "position_gain")):
+            if task is not None and task.gain is not None:
+                changes.setdefault(name, task.gain)
         try:
             settings = dataclasses.replace(settings or TrackerSettings(), **changes)
         except TypeError:
             valid = ", ".join(f.name for f in dataclasses.fields(TrackerSettings))
             raise InputError(f"unknown tracker setting among {sorted(changes)}; valid: {valid}") from None
         check_settings(settings)
+        if orientation is not None and orientation_links is not None:
+            raise InputError("give the orientation targets' links once: orientation_links or an OrientationTask")
+        if position is not None and position_links is not None:
+            raise InputError("give the position targets' links once: position_links or a PositionTask")
+        orientation_links = orientation.links if orientation is not None else orientation_links
+        position_links = position.links if position is not None else position_links
+        if orientation_links is None:
+            raise InputError("give the orientation targets' links (orientation_links, or an OrientationTask)")
         self.model, self.settings = model, settings
         self.position_links = tuple(position_links if position_links is not None else (model.base_link,))
         self.orientation_links = tuple(orientation_links)
-        self.structure = StepStructure.build(model, self.orientation_links, self.position_links, settings)
+        extra_limits = split_limits(constraints)
+        self.tasks: tuple[Task, ...] = (orientation or OrientationTask(links=self.orientation_links),
+                                        position or PositionTask(links=self.position_links)) + extra_tasks
+        self.constraints: tuple[Limit, ...] = (JointLimits(), CoupledLimits()) + extra_limits
+        self.structure = StepStructure.build(model, self.orientation_links, self.position_links, settings,
+                                             extra_tasks, extra_limits)
+        if settings.compile and (extra_tasks or extra_limits):
+            warnings.warn("the captured step (compile=True) takes the paper's tasks and the model's limits only: "
+                          "with other tasks or limits the tracker steps eagerly", stacklevel=2)
+            self.settings = settings = dataclasses.replace(settings, compile=False)
         self._backends: dict[str, QPBackend] = {}
         self.backend = self._backend_for(1)
         self._history = SchemeHistory(settings.scheme, float(settings.dt))
@@ -121,6 +153,9 @@ class DynamicalIK:
         self._batch = BatchSetup.build(self.model, self.structure, self.settings, self.backend, B)
         self._no_restart = torch.zeros(B, dtype=torch.bool, device=state.base_position.device)
         self._captured = None
+        self._steps = 0  # since this reset: the sample a step tracks, unless it is told
+        for part in self.tasks + self.constraints:
+            part.reset()
         if self.settings.compile:
             if B not in self._captures:
                 self._captures[B] = CapturedStep(model, self.structure, self.settings, self._batch)
@@ -152,12 +187,14 @@ class DynamicalIK:
     # ------------------------------------------------------------------ the step
     @torch.inference_mode()  # no autograd bookkeeping: at small batches it is a fifth of the step
     def step(self, targets: Targets, dt: float | torch.Tensor | None = None,
-             checked: bool = False) -> tuple[State, StepDiagnostics]:
+             checked: bool = False, sample: int | None = None) -> tuple[State, StepDiagnostics]:
         """Advance by dt (default: the nominal dt; a scalar or [B]) towards `targets`.
 
         targets: Targets with n_p position and n_o orientation targets, batch B. checked: every
         target is known finite and every rotation orthonormal (`targets.clean_steps`, which a run
-        applies to a whole sequence at once), so the step does not check them again.
+        applies to a whole sequence at once), so the step does not check them again. sample: the
+        index of these targets in their sequence, for tasks and limits with inputs per sample (a
+        contact's switch); default, the steps since `reset`.
         Returns the new State and the step's StepDiagnostics. Their tensors are inference tensors
         (torch.inference_mode): use them freely, but clone one before using it in autograd.
         """
@@ -165,6 +202,8 @@ class DynamicalIK:
         q, batch, structure, model = self._require_state(), self._batch, self.structure, self.model
         assert batch is not None and self._rotation is not None  # set with the state by reset()
         self._check_targets(targets, batch)
+        sample = self._steps if sample is None else sample
+        self._steps += 1
         if self._captured is not None and self._history.settled:
             replayed = self._captured(q, self._rotation, self._history, targets, dt)
             if replayed is not None:
@@ -183,7 +222,9 @@ class DynamicalIK:
 
         valid = None if clean.all_valid else (clean.position_valid, clean.orientation_valid)
         weights = (None, None) if valid is None else (valid[0].to(q.velocity.dtype), valid[1].to(q.velocity.dtype))
-        task = step_task(model, structure, self.settings, batch, q.joint_positions, at, kin, dt, weights)
+        context = StepContext(model, State(q.base_position, self._rotation, q.joint_positions, q.velocity), dt, sample) \
+            if structure.tasks or structure.limits else None
+        task = step_task(model, structure, self.settings, batch, q.joint_positions, at, kin, dt, weights, context)
         problem = task.problem
 
         qp_start = time.perf_counter()

@@ -6,8 +6,7 @@ and the link poses of all time steps from batched kinematics.
 Entities, for each logged subject i of the batch:
 
     /subject/<i>/estimate/<link>           Transform3D: the estimated link pose; axes on the tracked links
-    /subject/<i>/estimate/<link>/visual    the link's URDF visual shapes (boxes, cylinders, spheres;
-                                           meshes at visual/mesh<k>), fixed in the link frame
+    /subject/<i>/estimate/<link>/visual    the link's URDF visuals (meshes at visual/mesh<k>), fixed to it
     /subject/<i>/skeleton                  LineStrips3D: a bone from each tracked link to its nearest
                                            tracked ancestor
     /subject/<i>/target/<link>             Transform3D and longer axes: the measured rotation, at the
@@ -15,16 +14,15 @@ Entities, for each logged subject i of the batch:
     /subject/<i>/errors/<mnte|rmse>        Scalars: the paper's metrics (those the diagnostics hold)
     /subject/<i>/residual/<position|orientation>/<link>
                                            Scalars: the step's |r| (m, or sin of the angle)
-    /subject/<i>/joints/<joint>            Scalars: angle (rad), and lower and upper limit where the
-                                           joint has effective ones
+    /subject/<i>/joints/<joint>            Scalars: angle (rad), and its limits where they are effective
     /subject/<i>/solver/<active_constraints|solved|dropped|projected>
     /subject/<i>/diagnostics/<name>        Scalars: any other per-subject diagnostic [T,B]
+    /subject/<i>/tasks/<name>              Scalars: an added task's series (`log_series`: a contact's slide)
     /timing/<step_time|kinematics_time|qp_time>   Scalars: ms for the whole batch's step
     /aggregate/<group>/<name>              Scalars: mean and max over all subjects (batches only)
 
-A blueprint in the same file opens it on the 3D view beside error, residual, joint and solver plots.
-Open with `rerun FILE.rrd`. `StepLogger` sends the same entities step by step, as a live session
-makes them (`torchik live --viewer`, `--rrd`).
+A blueprint opens it on the 3D view beside error, residual, joint and solver plots (`rerun FILE.rrd`).
+`StepLogger` sends the same entities step by step, as a live session does (`torchik live --viewer`).
 """
 
 from __future__ import annotations
@@ -134,6 +132,14 @@ class RrdWriter:
             _check_targets(targets, T, B, len(self.links), len(self.logger.position_links))
         self.logger.log(trajectory, targets, range(B), rows=self.subjects)
         self.logger.rec.flush()  # to the file: what rerun holds stays one part's
+
+    def log_series(self, path: str, time: np.ndarray, values: np.ndarray, names: list[str] | None = None) -> None:
+        """Scalar series over the run (values [T] or [T,k] at `time` [T], s) at `path` under the first
+        subject (what added tasks did: a contact's slide), written before `commit`."""
+        if self.logger is None or self.subjects is None:
+            raise InputError("log_series: write a part of the trajectory first")
+        column = rr.TimeColumn("time", duration=np.asarray(time, dtype=np.float64))
+        _send_scalars(self.logger.rec, f"/subject/{self.subjects[0]}/{path}", column, values, names)
 
     def commit(self) -> Path:
         """The recording closed (with its footer) and moved onto the path; returns it."""

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections import deque
-from typing import Iterable, Iterator, Protocol
+from typing import Iterable, Iterator, Protocol, Sequence
 
 import numpy as np
 import torch
@@ -26,9 +26,11 @@ from ..errors import InputError
 from ..io.plausible import ImplausibleFilter, Plausibility
 from ..io.recording import Recording
 from ..io.targets import target_chunks
+from ..method.constraints import Limit
 from ..method.kinematics import KinematicModel
 from ..method.settings import TrackerSettings
 from ..method.state import TargetSequence, Trajectory
+from ..method.tasks import Task
 from ..method.tracker import DynamicalIK
 from .evaluation import tracking_errors
 from .interrupts import deferred_interrupts
@@ -94,14 +96,17 @@ class Collected:
 def track_chunks(model: KinematicModel, source: Source, links, settings: TrackerSettings, outputs: Iterable[Output] = (),
                  *, progress: bool = False, transient: float = 2.0, position_links=None,
                  plausibility: Plausibility | None = None, chunk: int = CHUNK,
-                 settle: float = 0.0) -> tuple[TrackSummary, int, bool]:
+                 settle: float = 0.0, tasks: Sequence[Task] = (),
+                 constraints: Sequence[Limit] = ()) -> tuple[TrackSummary, int, bool]:
     """Track `source` a chunk of `chunk` frames at a time with `settings` (dt: the nominal step),
     from the zero posture or, with `settle` > 0 (s), from rest in the first frame's posture
     (`settled_state`), each part of the trajectory, with its mnte and rmse diagnostics
     (`tracking_errors`), written to every output as it is done. Returns the run's TrackSummary, the
     number of samples dropped as implausible, and whether Ctrl-C (or SIGTERM) stopped the run (the
     outputs then hold the frames done). The recording is read once before the tracking: what is
-    wrong with it (a frame that is not valid, nothing measured) is said before any work."""
+    wrong with it (a frame that is not valid, nothing measured) is said before any work. tasks: the
+    step's tasks beyond the paper's targets (a contact, a centre of mass, a posture: tasks.py), constraints:
+    its limits beyond the model's (a contact held exactly: constraints.py)."""
     links, bounds = tuple(links), plausibility or Plausibility()
     position_links = tuple(position_links) if position_links is not None else None
     targets = lambda counted: target_chunks(_plausible(source.chunks(chunk), bounds, counted), links,  # noqa: E731
@@ -123,8 +128,8 @@ def track_chunks(model: KinematicModel, source: Source, links, settings: Tracker
             output.write(part, sequence)
 
     time = torch.as_tensor(source.time, dtype=model.dtype, device=model.device)
-    run = DynamicalIK(model, links, position_links, settings=settings).run_parts(parts(), time, progress=progress,
-                                                                                 interruptible=True, settle=settle)
+    run = DynamicalIK(model, links, position_links, settings=settings, tasks=tasks, constraints=constraints).run_parts(
+        parts(), time, progress=progress, interruptible=True, settle=settle)
     held = None  # a part waits for the next one's first velocity: its last estimate averages the two steps
     interrupted = False
     try:

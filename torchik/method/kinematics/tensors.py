@@ -29,6 +29,8 @@ class Geometry:
     rotation_cos_term: torch.Tensor  # [F,3,3,S] offset_rotation @ hat(axis)^2
     link_rotation: torch.Tensor  # [N,3,3,S] every URDF link in its anchor frame
     link_position: torch.Tensor  # [N,3,S]
+    link_mass: torch.Tensor  # [N,S] kg (0: no <inertial>)
+    link_com: torch.Tensor  # [N,3,S] each link's centre of mass in its frame (m)
 
     def to(self, dtype=None, device=None) -> "Geometry":
         return Geometry(*(t.to(dtype=dtype, device=device) for t in vars(self).values()))
@@ -50,6 +52,8 @@ def tree_geometry(tree: KinematicTree) -> Geometry:
         rotation_cos_term=_soa(R_off @ K @ K),
         link_rotation=_soa(tree.link_rotation),
         link_position=_soa(tree.link_position),
+        link_mass=_soa(tree.link_mass),
+        link_com=_soa(tree.link_com),
     )
 
 

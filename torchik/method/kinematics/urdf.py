@@ -67,6 +67,8 @@ class KinematicTree:
     link_position: np.ndarray
     ancestor: np.ndarray
     joint_parents: tuple[int, ...]
+    link_mass: np.ndarray
+    link_com: np.ndarray
 
     @property
     def n_dof(self) -> int:
@@ -193,7 +195,23 @@ def compile_tree(robot, where: str) -> KinematicTree:
         link_rotation=_frozen(np.stack([walk.link_offset[n][0] for n in links])),
         link_position=_frozen(np.stack([walk.link_offset[n][1] for n in links])),
         ancestor=_frozen(ancestor), joint_parents=_joint_parents(ancestor, joint_frame),
+        **_mass_properties(robot, where),
     )
+
+
+def _mass_properties(robot, where: str) -> dict[str, np.ndarray]:
+    """link_mass [N] and link_com [N,3] (the <inertial> origin, in the link's frame; a rotated
+    inertial frame moves no centre of mass) of the parsed URDF's links."""
+    mass, com = np.zeros(len(robot.links)), np.zeros((len(robot.links), 3))
+    for i, link in enumerate(robot.links):
+        inertial = getattr(link, "inertial", None)
+        if inertial is None:
+            continue
+        m = float(inertial.mass or 0.0)
+        if not (m >= 0.0 and np.isfinite(m)):
+            raise ModelError(f"{where}: link {link.name!r} has mass {m}; a mass is a finite number >= 0")
+        mass[i], com[i] = m, _origin(inertial.origin)[1]
+    return dict(link_mass=_frozen(mass), link_com=_frozen(com))
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:

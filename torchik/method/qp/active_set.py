@@ -75,11 +75,12 @@ class ActiveSetResult:
 
 
 def active_set(H, problem: QPProblem, sets: Sets, budget: int, tolerance: float,
-               factor=None) -> ActiveSetResult:
+               factor=None, equality: torch.Tensor | None = None) -> ActiveSetResult:
     """Active-set iterations from `sets`, at most `budget`. tolerance: how far (relative) a free
     variable may pass a bound, or a multiplier have the wrong sign, before the active set changes.
     factor: H's factorisation with every variable free, made already: the first iteration's, whose
-    sets then hold no bound (rows may be active).
+    sets then hold no bound (rows may be active). equality [m] bool: the rows of G that hold with
+    equality (rows.optimal_rows).
 
     After the first iteration only the subjects not yet done are carried on (gathered into a
     smaller batch): in tracking most subjects keep their active set and finish at once."""
@@ -95,7 +96,7 @@ def active_set(H, problem: QPProblem, sets: Sets, budget: int, tolerance: float,
         pick = functools.partial(select, live)
         u, l, r, tol = pick(upper), pick(lower), pick(rows), tolerances.pick(live)
         x_new, nu_new, eta_new, new_r, rows_done, steps = solve_on(sub_H, sub, u, l, r, tol,
-                                                                   factor if iteration == 1 else None)
+                                                                   factor if iteration == 1 else None, equality)
         row_steps += steps
         new_u, new_l, same = next_bounds(sub, x_new, nu_new, u, l, tol)
         same &= rows_done
@@ -114,7 +115,7 @@ def active_set(H, problem: QPProblem, sets: Sets, budget: int, tolerance: float,
     return ActiveSetResult(x, nu, eta, (upper, lower, rows), done, iteration, row_steps)
 
 
-def solve_on(H, problem: QPProblem, upper, lower, rows, tol: Tolerances, factor=None):
+def solve_on(H, problem: QPProblem, upper, lower, rows, tol: Tolerances, factor=None, equality=None):
     """The bounds `upper`, `lower` [B,N] held, the rows' optimal active set from `rows` [B,m].
     factor: H's factorisation on the free variables, if made already.
     Returns x [B,N], the bound multipliers nu [B,N] (nu > 0 pushes against an upper bound, nu < 0
@@ -131,7 +132,8 @@ def solve_on(H, problem: QPProblem, upper, lower, rows, tol: Tolerances, factor=
         eta = torch.zeros_like(h)
         violation = row_values(G, x) - h  # at eta = 0
         # only the subjects with an active or a violated row enter the rows' Schur complement
-        involved = any_last(rows | (violation > tol.row)).nonzero().flatten()
+        off = violation > tol.row if equality is None else torch.where(equality, violation.abs(), violation) > tol.row
+        involved = any_last(rows | off).nonzero().flatten()
         if len(involved):
             pick = functools.partial(select, involved)
             sub_H = H.select(involved)
@@ -143,7 +145,7 @@ def solve_on(H, problem: QPProblem, upper, lower, rows, tol: Tolerances, factor=
             else:
                 sub_factor = factor.select(involved)
             solved = _with_rows(sub_H, sub_factor, pick(g), pick(G), pick(h), pick(x),
-                                pick(violation), pick(rows), pick(held), tol.pick(involved))
+                                pick(violation), pick(rows), pick(held), tol.pick(involved), equality)
             x, eta = x.index_copy(0, involved, solved[0]), eta.index_copy(0, involved, solved[1])
             rows = rows.index_copy(0, involved, solved[2])
             rows_done = rows_done.index_copy(0, involved, solved[3])
@@ -165,7 +167,7 @@ def _bound_multipliers(H, g, G, x, eta, held):
     return nu
 
 
-def _with_rows(H, factor, g, G, h, x, violation, rows, held, tol: Tolerances):
+def _with_rows(H, factor, g, G, h, x, violation, rows, held, tol: Tolerances, equality=None):
     """The rows' part for the subjects that have rows to hold: their Schur complement with the
     bounds' factorisation, the optimal active rows in it (`optimal_rows`), and one step of
     iterative refinement (on a nearly singular H the Schur complement is ill-conditioned and the
@@ -174,7 +176,8 @@ def _with_rows(H, factor, g, G, h, x, violation, rows, held, tol: Tolerances):
     Z = factor.solve(G.transpose(1, 2))  # [k,N,m]: H_F^-1 G^T, zero on the held variables
     S = Z.transpose(1, 2) @ G[0].T if G.stride(0) == 0 else G @ Z  # G H_F^-1 G^T = (H_F^-1 G^T)^T G^T
     S = (S + S.transpose(1, 2)) / 2
-    eta, active, done, steps = optimal_rows(S, violation, rows, tol.row, tol.multiplier, budget=3 * G.shape[1] + 2)
+    eta, active, done, steps = optimal_rows(S, violation, rows, tol.row, tol.multiplier, budget=3 * G.shape[1] + 2,
+                                            equality=equality)
     x = x - (Z @ eta.unsqueeze(-1)).squeeze(-1)
     a = active.to(x.dtype)
     free = (~held).to(x.dtype)

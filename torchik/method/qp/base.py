@@ -13,11 +13,12 @@ from .tree import TreeFactor, TreeHessian
 
 @dataclass(frozen=True)
 class QPProblem:
-    """min 1/2 x^T H x + g^T x  s.t.  lb <= x <= ub,  G x <= h, for a batch.
+    """min 1/2 x^T H x + g^T x  s.t.  lb <= x <= ub,  G x <= h,  A x = b, for a batch.
 
     H: [B,N,N] symmetric positive definite, or None when `tree` gives it in structured form
     (a TreeHessian, which the batched backend solves in O(N)); g: [B,N]; lb, ub: [B,N] (+-inf
-    where free); G: [B,m,N] or None; h: [B,m] or None.
+    where free); G: [B,m,N] or None; h: [B,m] or None; A: [B,e,N] or None; b: [B,e] or None (a zero
+    row of A with b = 0 is no constraint: a contact switched off for a subject).
     """
 
     H: torch.Tensor | None
@@ -27,6 +28,16 @@ class QPProblem:
     G: torch.Tensor | None = None
     h: torch.Tensor | None = None
     tree: "TreeHessian | None" = None
+    A: torch.Tensor | None = None
+    b: torch.Tensor | None = None
+
+    @property
+    def equalities(self) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """(A [B,e,N], b [B,e]) of the equality rows A x = b, or None without any."""
+        if self.A is None:
+            return None
+        assert self.b is not None, "a QPProblem's A comes with its b"
+        return self.A, self.b
 
     @property
     def dense_hessian(self) -> torch.Tensor:
@@ -118,6 +129,9 @@ def unconstrained(problem: QPProblem) -> Unconstrained:
     if (rows := problem.rows) is not None:
         G, h = rows
         feasible &= (row_values(G, x) <= h).all(-1)
+    if (equal := problem.equalities) is not None:  # a minimiser that ignored them holds them only by chance
+        A, b = equal
+        feasible &= (row_values(A, x) == b).all(-1)
     return Unconstrained(x, feasible, factor)
 
 

@@ -1,7 +1,10 @@
 """A batched QP solver in torch: the primal-dual active-set method, exact at convergence, with an
 interior-point rescue.
 
-    minimise 1/2 x^T H x + g^T x   subject to   lb <= x <= ub,   G x <= h
+    minimise 1/2 x^T H x + g^T x   subject to   lb <= x <= ub,   G x <= h,   A x = b
+
+Equality rows A x = b join the rows G x <= h as rows always held, their multipliers of either
+sign (`rows.optimal_rows`); the interior point takes each as two opposite inequalities.
 
 Each active-set iteration guesses which bounds are active, factorises H on the free variables,
 finds the optimal active rows of G in their Schur complement with that factorisation, and moves to
@@ -29,6 +32,7 @@ batches, where the tree's fixed cost per level dominates).
 
 from __future__ import annotations
 
+import dataclasses
 from typing import cast
 
 import torch
@@ -73,22 +77,24 @@ class BatchedBackend(QPBackend):
     def solve(self, problem: QPProblem, warm_start: torch.Tensor | None = None,
               start: Unconstrained | None = None) -> QPSolution:
         H = problem.tree if problem.tree is not None else DenseHessian(problem.dense_hessian)
+        problem, equality = _with_equalities(problem)
         if start is None:
-            result = active_set(H, problem, self._initial_sets(problem), self.active_set_iterations, self.tolerance)
+            result = active_set(H, problem, self._initial_sets(problem, equality), self.active_set_iterations,
+                                self.tolerance, equality=equality)
         else:
-            result = self._continued(H, problem, start)
+            result = self._continued(H, problem, start, equality)
         x, nu, eta, sets, done = result.x, result.nu, result.eta, result.sets, result.done
         self.iterations, self.row_steps, self.rescued = result.iterations, result.row_steps, 0
         if not bool(done.all()):
             rest = (~done).nonzero().flatten()
             self.rescued = len(rest)
             sub_H, sub = take(H, problem, rest)
-            ip_x, ip_nu, ip_eta, ip_done, guess = interior_point(sub_H, sub, self.interior_point_iterations,
-                                                                 self._kkt_tolerance(problem.g.dtype))
+            ip_x, ip_nu, ip_eta, ip_done, guess = _interior_point(sub_H, sub, equality, self.interior_point_iterations,
+                                                                  self._kkt_tolerance(problem.g.dtype))
             # the active set the interior point points to, confirmed exactly where the active-set
             # iterations agree; elsewhere (degenerate or nearly singular problems, where a bound
             # with a vanishing multiplier flips back and forth) the interior point's own solution
-            polish = active_set(sub_H, sub, guess, self.polish_iterations, self.tolerance)
+            polish = active_set(sub_H, sub, guess, self.polish_iterations, self.tolerance, equality=equality)
             pol_done = polish.done
             pick = lambda a, b: None if a is None else torch.where(pol_done[:, None], a, b)  # noqa: E731
             x = x.index_copy(0, rest, torch.where(pol_done[:, None], polish.x, ip_x))
@@ -102,9 +108,12 @@ class BatchedBackend(QPBackend):
         self._last = sets
         if not bool(solved.all()):
             x = torch.where(solved[:, None], x, clipped_fallback(problem))
+        if equality is not None and eta is not None:  # the rows' multipliers as the problem gave them: G's only
+            eta = eta[:, int(equality.sum()):]
+            eta = None if eta.shape[1] == 0 else eta
         return QPSolution(x, solved, nu, eta)
 
-    def _continued(self, H, problem: QPProblem, start: Unconstrained) -> ActiveSetResult:
+    def _continued(self, H, problem: QPProblem, start: Unconstrained, equality=None) -> ActiveSetResult:
         """The active-set iterations for the subjects that `start`'s minimiser does not satisfy (the
         others are solved, with nothing active), from the last solve's active set. start's guess,
         no bound held, is the first iteration; where those subjects hold no bound in the last
@@ -113,7 +122,7 @@ class BatchedBackend(QPBackend):
         the tree's solves, is no other iteration). Where one does, start's guess was not theirs:
         their first iteration factorises on it and counts as a second. Only those subjects are
         gathered: in tracking, a few of the batch."""
-        upper, lower, rows = self._initial_sets(problem)
+        upper, lower, rows = self._initial_sets(problem, equality)
         none = torch.zeros_like(upper)
         no_rows = None if rows is None else torch.zeros_like(rows)
         live = (~start.feasible).nonzero().flatten()
@@ -130,7 +139,7 @@ class BatchedBackend(QPBackend):
         if held or not isinstance(sub_H, TreeHessian):  # gathered densely (`take`): refactorised densely
             factor = None
         result = active_set(sub_H, sub, sets, self.active_set_iterations, self.tolerance,
-                            factor=None if factor is None else factor.select(live))
+                            factor=None if factor is None else factor.select(live), equality=equality)
 
         def scatter(whole, part):
             return None if whole is None else whole.index_copy(0, live, part)
@@ -147,9 +156,9 @@ class BatchedBackend(QPBackend):
         float64, 1e-4 in float32 (its rounding, 1e-7, times the conditioning of the step's Hessian)."""
         return self.kkt_tolerance if dtype == torch.float64 else max(self.kkt_tolerance, 1e-4)
 
-    def _initial_sets(self, problem: QPProblem):
-        """The last solve's active set (same batch shape), else none: the first iteration then
-        solves the unconstrained problem."""
+    def _initial_sets(self, problem: QPProblem, equality: torch.Tensor | None = None):
+        """The last solve's active set (same batch shape), else none but the equality rows: the first
+        iteration then solves the unconstrained problem (on those rows)."""
         B, N = problem.g.shape
         m = 0 if problem.G is None else problem.G.shape[1]
         if self._last is not None:
@@ -159,4 +168,33 @@ class BatchedBackend(QPBackend):
                 # (never an infinite bound: |bound| < inf is isfinite, at a third of its cost on a CPU)
                 return upper & (problem.ub.abs() < torch.inf), lower & (problem.lb.abs() < torch.inf) & ~upper, rows
         none = torch.zeros(B, N, dtype=torch.bool, device=problem.g.device)
-        return none, none.clone(), None if m == 0 else torch.zeros(B, m, dtype=torch.bool, device=problem.g.device)
+        rows = None if m == 0 else torch.zeros(B, m, dtype=torch.bool, device=problem.g.device)
+        return none, none.clone(), rows if rows is None or equality is None else rows | equality
+
+
+def _with_equalities(problem: QPProblem) -> tuple[QPProblem, torch.Tensor | None]:
+    """The problem with its equality rows A x = b put before its rows G x <= h, and which rows of
+    the result are equalities ([e + m] bool; None without any)."""
+    if (equal := problem.equalities) is None:
+        return problem, None
+    A, b = equal
+    e = A.shape[1]
+    G = A if problem.G is None else torch.cat((A, problem.G.expand(A.shape[0], -1, -1)), 1)
+    h = b if problem.h is None else torch.cat((b, problem.h), 1)
+    equality = torch.zeros(G.shape[1], dtype=torch.bool, device=G.device)
+    equality[:e] = True
+    return dataclasses.replace(problem, G=G, h=h, A=None, b=None), equality
+
+
+def _interior_point(H, problem: QPProblem, equality: torch.Tensor | None, iterations: int, tolerance: float):
+    """`interior_point` on the problem with each equality row as two opposite inequalities; the
+    active set it points to in the problem's rows (its equality rows held)."""
+    if equality is None:
+        return interior_point(H, problem, iterations, tolerance)
+    assert problem.G is not None and problem.h is not None  # the equalities are among the rows
+    G, h = problem.G, problem.h
+    split = dataclasses.replace(problem, G=torch.cat((G, -G[:, equality]), 1), h=torch.cat((h, -h[:, equality]), 1))
+    x, nu, eta, done, (upper, lower, rows) = interior_point(H, split, iterations, tolerance)
+    m = G.shape[1]
+    eta = eta[:, :m].index_add(1, equality.nonzero().flatten(), -eta[:, m:])
+    return x, nu, eta, done, (upper, lower, (rows[:, :m] | equality))

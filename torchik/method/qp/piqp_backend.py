@@ -39,10 +39,15 @@ class PiqpBackend(QPBackend):
         numpy = lambda t: t.detach().cpu().double().numpy()  # noqa: E731
         H, g, lb, ub = (numpy(t) for t in (problem.dense_hessian, problem.g, problem.lb, problem.ub))
         G, h = (None, None) if problem.rows is None else (numpy(t) for t in problem.rows)
+        A, b_eq = (None, None) if problem.equalities is None else (numpy(t) for t in problem.equalities)
         solved = torch.ones_like(done)
         for b in rows:  # PIQP solves one problem per call; the batched backend removes this loop
+            A_b = b_b = None
+            if A is not None and b_eq is not None:
+                on = np.abs(A[b]).sum(-1) > 0  # a zero row is no constraint (a contact off)
+                A_b, b_b = (A[b][on], b_eq[b][on]) if on.any() else (None, None)
             qp = self._qpsolvers.Problem(H[b], g[b], None if G is None else G[b], None if h is None else h[b],
-                                         lb=lb[b], ub=ub[b])
+                                         A_b, b_b, lb=lb[b], ub=ub[b])
             # the duality gap needs its own tolerances: at PIQP's defaults a solve can stop with a bound
             # held loosely and the step off by 1e-3 on these nearly singular Hessians
             # a failed solve's NaN duals make qpsolvers' arithmetic warn; the failure is caught below and counted

@@ -76,26 +76,30 @@ def _multipliers(S: torch.Tensor, b: torch.Tensor, active: torch.Tensor) -> torc
 
 
 def optimal_rows(S: torch.Tensor, b: torch.Tensor, active: torch.Tensor, slack_tolerance: torch.Tensor,
-                 multiplier_tolerance: torch.Tensor, budget: int):
+                 multiplier_tolerance: torch.Tensor, budget: int, equality: torch.Tensor | None = None):
     """The rows' optimal active set and multipliers by Goldfarb and Idnani's method, from `active`.
 
     S [B,m,m] (symmetric positive semidefinite), b [B,m]: the rows' Schur complement and violations
     at eta = 0 (see the module's docstring); active [B,m] bool: the first guess; slack_tolerance
-    [B,m], multiplier_tolerance [B,1]: how far a slack or a multiplier may be negative.
-    Returns eta [B,m], active [B,m], done [B] (every row holds, every multiplier >= 0; False where
-    the rows are infeasible with the held bounds or the budget ran out) and the changes made.
+    [B,m], multiplier_tolerance [B,1]: how far a slack or a multiplier may be negative; equality
+    [m] bool: rows that hold with equality (always active, their multipliers of either sign; a zero
+    row, S's diagonal 0 there, is no constraint and stays out).
+    Returns eta [B,m], active [B,m], done [B] (every row holds, every inequality's multiplier >= 0;
+    False where the rows are infeasible with the held bounds or the budget ran out) and the changes made.
     """
     steps = 0
+    free_sign = torch.zeros_like(active) if equality is None else equality.expand_as(active)
+    active = active & ~free_sign | free_sign & (S.diagonal(dim1=1, dim2=2) > 0)
     # a dual-feasible start: the last active set less its dependent rows and, one pass at a time,
     # the rows whose multiplier is negative (releasing one can turn another negative)
     for steps in range(1, budget + 1):  # noqa: B007  (the count is returned)
         active = _independent(S, active)
         eta = _multipliers(S, b, active)
-        negative = active & (eta < -multiplier_tolerance)
+        negative = active & (eta < -multiplier_tolerance) & ~free_sign
         if not bool(negative.any()):
             break
         active = active & ~negative
-    eta = eta.clamp(min=0)
+    eta = torch.where(free_sign, eta, eta.clamp(min=0))
     stuck = torch.zeros_like(active[:, 0])
     pending = torch.full_like(stuck, -1, dtype=torch.long)
     for step in range(steps + 1, budget + 1):
@@ -104,22 +108,26 @@ def optimal_rows(S: torch.Tensor, b: torch.Tensor, active: torch.Tensor, slack_t
         violated = (slack < -slack_tolerance) & ~active & ~stuck[:, None]
         if not bool(violated.any()):
             break
-        eta, active, stuck, pending = _step(S, eta, slack, active, violated, stuck, pending)
+        eta, active, stuck, pending = _step(S, eta, slack, active, violated, stuck, pending, free_sign)
     # the multipliers of the final set, exactly (the steps' updates drift by rounding)
     eta = _multipliers(S, b, active)
     slack = (S @ eta.unsqueeze(-1)).squeeze(-1) - b
-    done = ~stuck & (slack >= -slack_tolerance).all(-1) & (eta >= -multiplier_tolerance).all(-1) \
-        & torch.isfinite(eta).all(-1)
+    # an active equality holds by its solve (to the rounding of S, which a nearly singular H makes
+    # large: iterative refinement follows, _with_rows); one left out must hold as it is
+    holds = torch.where(free_sign, active | (slack.abs() <= slack_tolerance), slack >= -slack_tolerance)
+    signed = free_sign | (eta >= -multiplier_tolerance)
+    done = ~stuck & holds.all(-1) & signed.all(-1) & torch.isfinite(eta).all(-1)
     return eta, active, done, steps
 
 
-def _step(S, eta, slack, active, violated, stuck, pending):
+def _step(S, eta, slack, active, violated, stuck, pending, free_sign):
     """One step of Goldfarb and Idnani's method for each subject with a violated row: row p's
     multiplier grows by t while the active rows' multipliers change to keep them holding, t the
     full step (row p holds: it joins the active set) or the partial step at which an active row's
     multiplier reaches zero (that row leaves; p stays `pending`), whichever is shorter. p is the
     pending row, else the most violated. Subjects with neither step (the rows are infeasible with
-    the held bounds) are `stuck`."""
+    the held bounds) are `stuck`. Equality rows (free_sign) never leave: their multipliers may
+    take either sign."""
     B, m = slack.shape
     batch = torch.arange(B, device=S.device)
     moving = violated.any(-1)
@@ -132,14 +140,15 @@ def _step(S, eta, slack, active, violated, stuck, pending):
     sigma = column[batch, p] - (column * r).sum(-1)  # the curvature row p adds to the active rows'
     tiny = torch.finfo(S.dtype).tiny
     full = torch.where(sigma > _dependence(S.dtype) * column[batch, p], -slack[batch, p] / sigma.clamp(min=tiny), torch.inf)
-    partial, blocking = torch.where(active & (r > 0), eta / r.clamp(min=tiny), torch.inf).min(-1)
+    partial, blocking = torch.where(active & (r > 0) & ~free_sign, eta / r.clamp(min=tiny), torch.inf).min(-1)
     t = torch.minimum(full, partial)
     blocked = moving & ~torch.isfinite(t)
     go = moving & ~blocked
     t = torch.where(go, t, torch.zeros_like(t))
     one_p = torch.nn.functional.one_hot(p, m).to(torch.bool)
     dropped = (go & (partial < full))[:, None] & torch.nn.functional.one_hot(blocking, m).to(torch.bool)
-    eta = torch.where(dropped, 0.0, eta - t[:, None] * r + t[:, None] * one_p).clamp(min=0)
+    eta = eta - t[:, None] * r + t[:, None] * one_p
+    eta = torch.where(dropped, 0.0, torch.where(free_sign, eta, eta.clamp(min=0)))
     active = (active | ((go & (full <= partial))[:, None] & one_p)) & ~dropped
     pending = torch.where(go & (partial < full), p, -1)
     return eta, active, stuck | blocked, pending

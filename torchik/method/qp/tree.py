@@ -46,9 +46,10 @@ class TreeHessian:
     damping: float
 
     @classmethod
-    def from_targets(cls, tree: JointTree, axes: torch.Tensor, damping: float, n_position: int,
-                     w_orientation: torch.Tensor | None = None, w_position: torch.Tensor | None = None) -> "TreeHessian":
-        """w_orientation [B,n_o], w_position [B,n_p]: target weights (None: all 1)."""
+    def from_targets(cls, tree: JointTree, axes: torch.Tensor, damping: float, n_position: int, *,
+                     w_position: torch.Tensor | None = None, w_orientation: torch.Tensor | None = None) -> "TreeHessian":
+        """w_position [B,n_p], w_orientation [B,n_o]: target weights (None: all 1), by keyword and in
+        the order `task.normal_equations` takes them."""
         B = axes.shape[0]
         if w_orientation is None:
             node_weight = tree.attach.sum(0).expand(B, -1)
