@@ -9,8 +9,10 @@ foot is within 3 cm of the lowest it goes and moves slower than 0.3 m/s, it is i
 (pipelines/contacts.py). Then again with each foot held there, as `torchik track --contacts auto`
 (a task of weight 100) and `--contact-weight exact` (equality rows). The table gives, per walk, the
 feet's slide per stance phase (the largest horizontal distance the foot's origin travels from where
-the phase began; mean and largest over the phases of both feet, mm) and the orientation error (MNTE
-median, rad, as `torchik track` reports it: after 2 s, or over a shorter walk). The built-in
+the phase began; mean and largest over the phases of both feet, mm), the orientation error (MNTE
+median, rad, as `torchik track` reports it: after 2 s, or over a shorter walk) and how far the
+pelvis is from its position target (median, mm): orientations alone fix every joint, so a foot held
+still moves the base off the pelvis' measured position, and that is where the contacts cost. The built-in
 scenario's walk is kinematic (no foot is ever still in it: its slowest foot moves at 0.1 m/s), so
 its stance is found by height alone. The recordings are read
 where they lie; absent, their rows are skipped, saying so.
@@ -56,8 +58,8 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     model, feet = load_model(args.model), FEET[args.model]
-    lines = ["| walk | stance (share of the time, phases) | " + " | ".join(
-        f"{mode}: slide mean, max (mm); MNTE" for mode, _ in MODES) + " |", "|---|---|" + "---|" * len(MODES)]
+    header = " | ".join(f"{mode}: slide mean, max (mm); MNTE; pelvis off (mm)" for mode, _ in MODES)
+    lines = [f"| walk | stance (share of the time, phases) | {header} |", "|---|---|" + "---|" * len(MODES)]
     for label, recording, speed in walks(model, args.model):
         links = tuple(n for n in TRACKED_LINKS[args.model] if n in recording.links)
         settings = TrackerSettings(dt=nominal_dt(recording, TrackerSettings()))
@@ -66,7 +68,7 @@ def main() -> None:
             start = time.perf_counter()
             tasks, limits = step_tasks(model, args.model, feet if masks else (), masks, None, None,
                                        weight or 100.0)
-            positions = LinkPositions(model, feet)
+            positions = LinkPositions(model, feet + (model.base_link,))
             summary, _, _ = track_chunks(model, recording, links, settings, [positions], settle=SETTLE,
                                          tasks=tasks, constraints=limits)
             if not masks:  # the stance, from the run without contacts
@@ -79,9 +81,11 @@ def main() -> None:
             mean = sum(per_phase) / phases if phases else math.nan
             largest = max((s["max_mm"] for s in slides if s["phases"]), default=math.nan)
             mnte = summary.report(settings, 0, False)["mnte"]["median"]  # after the report's transient
-            cells.append(f"{mean:.1f}, {largest:.1f}; {mnte:.2e}")
+            # where holding the feet costs: the pelvis moved off its position target (the orientations stay)
+            pelvis = 1e3 * np.nanmedian(np.linalg.norm(positions.position[:, -1] - recording.base_position, axis=-1))
+            cells.append(f"{mean:.1f}, {largest:.1f}; {mnte:.2e}; {pelvis:.0f}")
             share = f"{100 * on.mean():.0f} %, {phases}"
-            print(f"{label}: {mode}: slide {mean:.2f} mm mean, {largest:.2f} max; MNTE {mnte:.3g}; "
+            print(f"{label}: {mode}: slide {mean:.2f} mm mean, {largest:.2f} max; MNTE {mnte:.3g}; pelvis {pelvis:.1f} mm; "
                   f"{time.perf_counter() - start:.1f} s")
         lines.append(f"| {label} | {share} | " + " | ".join(cells) + " |")
     text = "\n".join(lines)

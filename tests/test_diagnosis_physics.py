@@ -48,12 +48,21 @@ def _names(effect, kind: str, target: str) -> bool:
                                     in effect.notes)
 
 
+def _invisible(effect, kind: str, target: str) -> bool:
+    """Whether `effect` names `kind` at `target` among the negligible ones because, tracked with and
+    without it, nothing a report shows changes by a degree (contribution.py): a strap turned about
+    directions the joints follow leaves a fraction of a degree (the study's "not identifiable")."""
+    return effect.kind == kind and effect.target == target and "nothing a report shows changes" in effect.notes
+
+
 @pytest.mark.parametrize("family", [family for family, _ in CASES])
 def test_each_simulated_effect_is_named_on_its_link_and_nothing_else(diagnosed, family):
+    """Named among the effects, or, where the joints follow it, listed as changing nothing."""
     injected, d = diagnosed[family]
     for inj in injected:
         for target in inj.targets:
-            assert any(_names(e, kind, target) for e in d.effects for kind in inj.kinds()), (family, target, d.effects)
+            assert any(_names(e, kind, target) for e in d.effects for kind in inj.kinds()) or any(
+                _invisible(e, kind, target) for e in d.negligible for kind in inj.kinds()), (family, target, d.effects)
     spurious = [e for e in d.effects if not any(_names(e, kind, target) for inj in injected for kind in inj.kinds()
                                                 for target in inj.targets)]
     assert not spurious, (family, spurious)

@@ -1,9 +1,9 @@
 """What each kept effect changes in what a report shows, and the effects that change nothing of it.
 
 Significance says the data show an effect; its family's floor (Effect.below_floor) says its size
-matters. An effect seen only in the orientations (a sensor's turned frame, a heading drift, a missing
-axis, a moved limit, a late sensor) can pass both and still change nothing anyone reports: the
-joints follow it, or it acts on a few samples, or its size is spread over a chain of small joints.
+matters. An effect seen only in the orientations (a sensor's turned frame, a heading drift, a moved
+limit, a late sensor) can pass both and still change nothing anyone reports: the joints follow it,
+or it acts on a few samples, or its size is spread over a chain of small joints.
 Its contribution is measured as what it changes once tracked: the subject with every kept effect
 against the subject without that one (elimination.variants), compared on
 
@@ -30,7 +30,9 @@ from .subject import Subject, analyse_subjects
 
 VISIBLE = 1.0  # deg
 TRANSIENT = 2.0  # s, the tracker's start left out
-SEEN_IN_ORIENTATIONS = ("misalignment", "heading_drift", "missing_dof", "joint_limit", "sensor_delay")
+# a missing axis is not among them: the joint angle it adds is itself what a report shows, and its
+# floor (joints.AXIS_FLOOR) already asks that angle to move by a degree
+SEEN_IN_ORIENTATIONS = ("misalignment", "heading_drift", "joint_limit", "sensor_delay")
 
 
 def _rms(x: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
