@@ -31,7 +31,7 @@ import torch
 from torchik.io import map_recording, read
 from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.method.settings import TrackerSettings
-from torchik.pipelines.contacts import FEET, LinkPositions, contact_mask, foot_slide, step_tasks
+from torchik.pipelines.contacts import FEET, LinkPositions, contact_mask, foot_slide, tracking_tasks
 from torchik.pipelines.track import SETTLE, nominal_dt, track_chunks
 from torchik.synthetic.scenarios import scenario
 
@@ -66,7 +66,7 @@ def main() -> None:
         masks, cells, share = {}, [], ""
         for mode, weight in MODES:
             start = time.perf_counter()
-            tasks, limits = step_tasks(model, args.model, feet if masks else (), masks, None, None,
+            tasks, limits = tracking_tasks(model, args.model, feet if masks else (), masks, None, None,
                                        weight or 100.0)
             positions = LinkPositions(model, feet + (model.base_link,))
             summary, _, _ = track_chunks(model, recording, links, settings, [positions], settle=SETTLE,

@@ -5,7 +5,7 @@ import torch
 from torchik.method import so3
 from torchik.method.limits import LimitSettings, linear_limit_bounds, velocity_bounds
 from torchik.method.qp import JointTree, QPProblem, TreeHessian
-from torchik.method.task import TaskStructure, normal_equations
+from torchik.method.target_equations import TargetStructure, normal_equations
 
 
 def step_problems(model, links, batch: int, seed: int, structured: bool = True, dtype=torch.float64) -> QPProblem:
@@ -30,7 +30,7 @@ def step_problems(model, links, batch: int, seed: int, structured: bool = True, 
         inside = torch.rand(batch, 1, generator=gen, **kw) < 0.9
         s = torch.where(inside, middle + 0.999 * shrink * (s - middle), s)
     base = (model.base_link,)
-    task = TaskStructure.build(model, links, base)
+    task = TargetStructure.build(model, links, base)
     selection = model.select(tuple(dict.fromkeys(base + tuple(links))))
     kin = model(p, R, s, selection, jacobian=task.position is not None, jacobian_links=task.position, joint_axes=True)
     scale = 4.0 * torch.rand(batch, 1, 1, generator=gen, **kw)

@@ -9,7 +9,7 @@ from step_problems import step_problems
 
 from torchik.method.models import TRACKED_LINKS, load_model
 from torchik.method.qp import DenseHessian, JointTree, TreeHessian
-from torchik.method.task import TaskStructure, normal_equations
+from torchik.method.target_equations import TargetStructure, normal_equations
 
 
 @pytest.mark.parametrize("name", ["human66", "icub"])
@@ -22,7 +22,7 @@ def test_the_tree_hessian_is_the_normal_matrix_of_the_step(name):
     R = R * torch.sign(torch.linalg.det(R))[:, None, None]
     s = torch.randn(B, model.n_dof, generator=g, dtype=torch.float64)
     base = (model.base_link,)
-    task = TaskStructure.build(model, links, base)
+    task = TargetStructure.build(model, links, base)
     kin = model(p, R, s, model.select(tuple(dict.fromkeys(base + tuple(links)))), jacobian=task.position is not None,
                 jacobian_links=task.position, joint_axes=True)
     w_o = (torch.rand(B, len(links), generator=g, dtype=torch.float64) > 0.2).double()  # some targets dropped

@@ -4,7 +4,8 @@ Properties:
 - declaring the paper's tasks (OrientationTask, PositionTask) is the same tracker, to the bit;
 - any other task makes the step dense, and a task of weight zero leaves the tree's solution (a batch
   of 128 on the batched backend) unchanged to 1e-10;
-- the centre of mass and its MIXED Jacobian equal pinocchio's (Human66, Human48, iCub);
+- the centre of mass and its MIXED Jacobian equal pinocchio's (Human66, Human48, iCub); a relative
+  task's rows are the difference of iDynTree's MIXED frame Jacobians;
 - a centre-of-mass task moves the body's centre of mass (as pinocchio computes it) to its target at
   the task's rate; a relative task brings the hands together; a posture task pulls untracked joints
   to the posture and leaves tracked ones to their targets;
@@ -24,7 +25,7 @@ from torchik.method import tasks
 from torchik.method.constraints import ContactLimit
 from torchik.method.kinematics.mass import centre_of_mass
 from torchik.method.models import TRACKED_LINKS, human_urdf, icub_urdf_path
-from torchik.method.state import TargetSequence
+from torchik.method.state import State, TargetSequence
 from torchik.method.tracker import DynamicalIK
 from torchik.pipelines.diagnosis.analysis import sequence_of
 
@@ -177,3 +178,21 @@ def test_a_contact_holds_the_foot_still_while_on_and_lets_it_go_while_off(walk, 
     out = [model(r.base_position[:, 0], r.base_rotation[:, 0], r.joint_positions[:, 0], ("RightFoot",),
                  jacobian=False).position[:, 0] for r in (free, held)]
     assert float((out[0][off] - out[1][off]).norm(dim=-1).max()) > 0.005
+
+
+def test_a_relative_tasks_jacobian_is_the_difference_of_idyntrees_frame_jacobians(tmp_path):
+    """RelativePositionTask's rows: the velocity of b's origin less a's, as iDynTree's MIXED frame
+    Jacobians give them, at random configurations; its residual, the offset less their distance."""
+    from test_kinematics import idyntree_reference
+
+    path = tmp_path / "human48.urdf"
+    path.write_text(human_urdf(48))
+    model = KinematicModel.from_urdf(path)
+    p, R, s = random_configurations(model, 4, seed=5)
+    offset = torch.tensor([0.1, 0.0, 0.0], dtype=torch.float64)
+    task = tasks.RelativePositionTask(a="RightHand", b="LeftHand", offset=offset)
+    r, J, _, _ = task.terms(tasks.StepContext(model, State(p, R, s, torch.zeros(4, 6 + model.n_dof, dtype=torch.float64)),
+                                        0.01, 0))
+    T, J_ref = idyntree_reference(model, path, ("RightHand", "LeftHand"), p, R, s)
+    assert np.abs(J.numpy() - (J_ref[:, 1, :3] - J_ref[:, 0, :3])).max() <= 1e-9
+    assert np.abs(r.numpy() - (offset.numpy() - (T[:, 1, :3, 3] - T[:, 0, :3, 3]))).max() <= 1e-9

@@ -32,7 +32,7 @@ from ..pipelines.contacts import (
     contact_mask,
     foot_slide,
     slide_series,
-    step_tasks,
+    tracking_tasks,
 )
 from ..pipelines.track import SETTLE
 from ..synthetic.scenarios import SCENARIOS
@@ -175,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
         before = LinkPositions(model, contacts)
         track_chunks(model, recording, links, settings, [before], **common)
     masks = {link: contact_mask(before.position[:, k], before.time) for k, link in enumerate(contacts)} if before else {}
-    tasks, limits = step_tasks(model, args.model, contacts, masks, args.com, args.posture, args.contact_weight)
+    tasks, limits = tracking_tasks(model, args.model, contacts, masks, args.com, args.posture, args.contact_weight)
     with _outputs(args, model, subject, links, position_links) as outputs:  # written as the run goes
         after, com = LinkPositions(model, contacts), CentreOfMassOffsets(model, FEET[args.model])
         measured = [after] if contacts else []

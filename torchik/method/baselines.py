@@ -46,8 +46,8 @@ from .metrics import orientation_error
 from .qp import QPProblem, make_backend
 from .residual import orientation_residual
 from .state import State, TargetSequence, Trajectory
+from .target_equations import TargetStructure, normal_equations
 from .targets import Targets, clean_targets
-from .task import TaskStructure, normal_equations
 
 
 @dataclass(frozen=True)
@@ -149,7 +149,7 @@ class WholeBodyIK(InstantaneousIK):
         long: dict[str, Any] = dict(dtype=torch.long, device=model.device)
         self._p = torch.tensor([index[n] for n in self.position_links], **long)
         self._o = torch.tensor([index[n] for n in self.orientation_links], **long)
-        self._task = TaskStructure.build(model, self.orientation_links, self.position_links)
+        self._task = TargetStructure.build(model, self.orientation_links, self.position_links)
         # as in the tracker: with every position target on the base, rotations and joint axes suffice
         self._rotations_only = self._task.position is None and len(self.orientation_links) > 0
         self._orientation_selection = model.select(self.orientation_links) if self.orientation_links else None

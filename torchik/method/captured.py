@@ -53,7 +53,7 @@ from .scheme import SchemeHistory, evaluation
 from .settings import TrackerSettings
 from .state import State
 from .step_kinematics import step_kinematics
-from .step_task import step_task, tracking_errors
+from .step_problem import step_problem, tracking_errors
 from .structure import BatchSetup, StepStructure
 from .targets import Targets, already_clean
 
@@ -166,7 +166,7 @@ class CapturedStep:
         at = evaluation(settings.scheme, q, R_B, x, previous, before, dt, last_dt, slope,
                         positions=not structure.rotations_only)
         kin = step_kinematics(model, structure, batch, settings.scheme, q, R_B, at)
-        task = step_task(model, structure, settings, batch, s, at, kin, dt)
+        task = step_problem(model, structure, settings, batch, s, at, kin, dt)
         start = unconstrained(task.problem)
         nu_next, feasible = start.x, start.feasible
         p_next, R_next, s_next = integrate(p, R, s, nu_next, dt, settings.rotation_integrator, settings.baumgarte_gain)

@@ -50,7 +50,7 @@ def step_kinematics(model: KinematicModel, structure: StepStructure, batch: Batc
                                    joint_axes=True).joint_axes
         return StepKinematics(model.rotations(R_B, q.joint_positions, links).rotation, p_hat, given(mid_axes), None)
     # position targets off the base need link positions and their Jacobians
-    jacobian, jacobian_links = structure.task.position is not None, structure.task.position
+    jacobian, jacobian_links = structure.targets.position is not None, structure.targets.position
     base_position = given(at.base_position)  # the step asked for positions
     if paper:
         now = model(q.base_position, R_B, q.joint_positions, structure.selection, out=batch.buffers,

@@ -14,7 +14,7 @@ from .kinematics import KinematicModel, LinkKinematics, LinkSelection
 from .limits import Bounds, base_velocity_bounds
 from .qp import BatchedBackend, JointTree, QPBackend
 from .settings import TrackerSettings
-from .task import TaskStructure
+from .target_equations import TargetStructure
 from .tasks import Task
 
 
@@ -24,8 +24,9 @@ class StepStructure:
 
     selection: every target link; orientation_selection: the orientation targets' links (None
     without any); position_index [n_p], orientation_index [n_o]: the targets in `selection`;
-    task: the normal equations' structure; tree: the joints' tree for the structured QP solve (None
-    when a position target is off the base link, or the model has no joint); rotations_only: the
+    targets: which coordinates move which of the paper's targets (target_equations.py); tree: the
+    joints' tree for the structured QP solve (None when a position target is off the base link, or
+    the model has no joint, or there are other tasks: `tasks`); rotations_only: the
     step needs link rotations and joint axes only (the paper's targets: orientations, and the base
     position); position_gain [n_p,1], orientation_gain [n_o,1]: K per target; base_selection: the
     base link alone (a kinematics call that only needs the joint axes); tasks, limits: those beyond
@@ -37,7 +38,7 @@ class StepStructure:
     orientation_selection: LinkSelection | None
     position_index: torch.Tensor
     orientation_index: torch.Tensor
-    task: TaskStructure
+    targets: TargetStructure
     tree: JointTree | None
     rotations_only: bool
     position_gain: torch.Tensor
@@ -51,7 +52,7 @@ class StepStructure:
               settings: TrackerSettings, tasks: tuple[Task, ...] = (), limits: tuple[Limit, ...] = ()) -> "StepStructure":
         links = tuple(dict.fromkeys(position_links + orientation_links))
         selection = model.select(links)  # raises UnknownLinkError for a bad name
-        task = TaskStructure.build(model, orientation_links, position_links)
+        targets = TargetStructure.build(model, orientation_links, position_links)
         index = {name: i for i, name in enumerate(links)}
         long: dict[str, Any] = dict(dtype=torch.long, device=model.device)
         gains = []
@@ -68,8 +69,8 @@ class StepStructure:
             if set(position_links) <= {model.base_link} and model.n_dof > 0 and not tasks else None
         return cls(selection, model.select(orientation_links) if orientation_links else None,
                    torch.tensor([index[n] for n in position_links], **long),
-                   torch.tensor([index[n] for n in orientation_links], **long), task, tree,
-                   task.position is None and len(orientation_links) > 0, gains[0], gains[1],
+                   torch.tensor([index[n] for n in orientation_links], **long), targets, tree,
+                   targets.position is None and len(orientation_links) > 0, gains[0], gains[1],
                    model.select((model.base_link,)), tuple(tasks), tuple(limits))
 
 
@@ -118,4 +119,5 @@ class BatchSetup:
                 (settings.compile and B >= cls.CAPTURED_TREE_FROM) or
                 (isinstance(backend, BatchedBackend) and B >= cls.TREE_FROM)),
             buffers=None if structure.rotations_only else
-            model.empty_output(rows, structure.selection, structure.task.position is not None, structure.task.position))
+            model.empty_output(rows, structure.selection, structure.targets.position is not None,
+                               structure.targets.position))

@@ -12,7 +12,7 @@ K_i r_i): a task gives `terms` (r, J, v), or, where it knows a cheaper form, its
 directly (a posture task's H is diagonal).
 
 The paper's two tasks, `OrientationTask` and `PositionTask`, are declarations: the step builds their
-normal equations from the tree's structure (task.py) and solves them in O(n) on the joints' tree
+normal equations from the tree's structure (target_equations.py) and solves them in O(n) on the joints' tree
 (qp/tree.py), which no general task allows. Any other task makes the step dense (the same batch,
 H formed and factorised densely). Tasks here are linearised at the step's start state (the paper's
 at mid-step, second order: scheme.py).

@@ -10,7 +10,7 @@ Each step, for a batch of B subjects, is the method read top to bottom (`Dynamic
    (and the Jacobians of position targets off the base) where the task is linearised;
 4. residuals r (position p* - p, orientation R_hat sk(R_hat^T R*)^vee, world frame) and corrected
    velocities v* = v + K r (`residual.py`);
-5. the objective ||v* - J nu||^2 + lambda ||nu||^2 as normal equations (`task.py`);
+5. the objective ||v* - J nu||^2 + lambda ||nu||^2 as normal equations (`target_equations.py`);
 6. bounds: the joint limits as velocity bounds, coupled limits as rows A s_dot <= h (`limits.py`);
 7. the QP (`qp/`);
 8. integration of the configuration from nu over dt (`integrate.py`);
@@ -47,7 +47,7 @@ from .sequence import run_parts
 from .settings import SCHEMES, TrackerSettings, check_settings
 from .state import State, StepDiagnostics, TargetSequence, Trajectory
 from .step_kinematics import StepKinematics, step_kinematics
-from .step_task import step_task, tracking_errors
+from .step_problem import step_problem, tracking_errors
 from .structure import BatchSetup, StepStructure
 from .targets import Targets, check_targets, clean_targets
 from .tasks import OrientationTask, PositionTask, StepContext, Task, split_tasks
@@ -224,7 +224,7 @@ class DynamicalIK:
         weights = (None, None) if valid is None else (valid[0].to(q.velocity.dtype), valid[1].to(q.velocity.dtype))
         context = StepContext(model, State(q.base_position, self._rotation, q.joint_positions, q.velocity), dt, sample) \
             if structure.tasks or structure.limits else None
-        task = step_task(model, structure, self.settings, batch, q.joint_positions, at, kin, dt, weights, context)
+        task = step_problem(model, structure, self.settings, batch, q.joint_positions, at, kin, dt, weights, context)
         problem = task.problem
 
         qp_start = time.perf_counter()

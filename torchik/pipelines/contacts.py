@@ -111,7 +111,7 @@ class CentreOfMassOverFeet(Task):
         return TaskTerms((middle - com.position)[:, :2], (com.jacobian - J_middle)[:, :2])
 
 
-def step_tasks(model: KinematicModel, model_name: str, contacts: Sequence[str] | None, masks: dict[str, np.ndarray],
+def tracking_tasks(model: KinematicModel, model_name: str, contacts: Sequence[str] | None, masks: dict[str, np.ndarray],
                com: float | None, posture: float | None,
                contact_weight: float = CONTACT_WEIGHT) -> tuple[list[Task], list[Limit]]:
     """The tasks and limits of `torchik track`'s --contacts (links, each with its [T] mask; weight

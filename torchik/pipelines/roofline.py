@@ -76,7 +76,7 @@ class Profile:
 
 def phase_functions() -> dict:
     """The code object of each function that starts a phase -> the phase's name."""
-    from ..method import integrate, metrics, residual, scheme, step_kinematics, step_task, targets, task
+    from ..method import integrate, metrics, residual, scheme, step_kinematics, step_problem, target_equations, targets
     from ..method.limits import velocity_bounds
     from ..method.qp import active_set, base, rows, tree
     from ..method.qp.batched import BatchedBackend
@@ -89,8 +89,8 @@ def phase_functions() -> dict:
                                DynamicalIK._time_step],
         "kinematics": [step_kinematics.step_kinematics],
         "residuals": [residual.position_residual, residual.orientation_residual, residual.corrected_velocity],
-        "normal equations": [task.normal_equations, tree.TreeHessian.from_targets],
-        "bounds": [velocity_bounds, step_task._coupled_rows],
+        "normal equations": [target_equations.normal_equations, tree.TreeHessian.from_targets],
+        "bounds": [velocity_bounds, step_problem._coupled_rows],
         "qp: factorisation": [tree.TreeFactor.__init__, DenseFactor.__init__],
         "qp: solves": [tree.TreeFactor.solve, DenseFactor.solve, tree.TreeHessian.matvec],
         "qp: rows": [rows.optimal_rows, active_set._with_rows],

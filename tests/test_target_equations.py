@@ -5,7 +5,7 @@ import torch
 from conftest import random_configurations
 
 from torchik.method.models import TRACKED_LINKS, load_model
-from torchik.method.task import TaskStructure, normal_equations
+from torchik.method.target_equations import TargetStructure, normal_equations
 
 
 @pytest.mark.parametrize("name,position_links", [("human66", ("Pelvis",)), ("human48", ("Pelvis", "RightHand", "LeftToe")),
@@ -22,7 +22,7 @@ def test_structured_normal_equations_equal_the_dense_ones(name, position_links, 
     if weighted:  # some targets dropped
         w_p = (torch.rand(6, len(position_links), generator=g_) > 0.3).double()
         w_o = (torch.rand(6, len(orientation_links), generator=g_) > 0.3).double()
-    structure = TaskStructure.build(model, orientation_links, position_links)
+    structure = TargetStructure.build(model, orientation_links, position_links)
     kin = model(p, R, s, orientation_links, jacobian=structure.position is not None, jacobian_links=structure.position,
                 joint_axes=True)  # Jacobians of the position links off the base only
     H, g = normal_equations(structure, kin.joint_axes, kin.jacobian, v_p, v_o, 1e-3, w_position=w_p, w_orientation=w_o)

@@ -38,7 +38,7 @@ class Objective(NamedTuple):
 
 
 @dataclass(frozen=True)
-class TaskStructure:
+class TargetStructure:
     """Which coordinates of nu move which targets, compiled once for a model and target links.
 
     target_mask: [n_p+n_o,N] M, position targets then orientation targets, N = 6 + n (a position
@@ -57,7 +57,7 @@ class TaskStructure:
     _damping: dict = field(default_factory=dict, compare=False, repr=False)
 
     @classmethod
-    def build(cls, model: KinematicModel, orientation_links, position_links) -> "TaskStructure":
+    def build(cls, model: KinematicModel, orientation_links, position_links) -> "TargetStructure":
         kw: dict[str, Any] = dict(dtype=model.dtype, device=model.device)
         M_o = model.select(tuple(orientation_links)).ancestor_mask if len(orientation_links) else \
             torch.zeros(0, model.n_dof, **kw)
@@ -81,7 +81,7 @@ class TaskStructure:
         return self._damping[damping]
 
 
-def normal_equations(structure: TaskStructure, joint_axes: torch.Tensor, position_jacobian: torch.Tensor | None,
+def normal_equations(structure: TargetStructure, joint_axes: torch.Tensor, position_jacobian: torch.Tensor | None,
                      v_position: torch.Tensor, v_orientation: torch.Tensor, damping: float, *,
                      w_position: torch.Tensor | None = None, w_orientation: torch.Tensor | None = None,
                      hessian: bool = True) -> Objective:

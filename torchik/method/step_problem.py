@@ -18,13 +18,13 @@ from .scheme import Evaluation
 from .settings import TrackerSettings
 from .step_kinematics import StepKinematics, given
 from .structure import BatchSetup, StepStructure
-from .task import normal_equations
+from .target_equations import normal_equations
 from .tasks import StepContext
 
 Weights = tuple[torch.Tensor | None, torch.Tensor | None]  # position [B,n_p], orientation [B,n_o]; None: all 1
 
 
-class StepTask(NamedTuple):
+class StepProblem(NamedTuple):
     """The residuals r_p [B,n_p,3], r_o [B,n_o,3] the step corrects and the QP that does it."""
 
     r_p: torch.Tensor
@@ -32,9 +32,9 @@ class StepTask(NamedTuple):
     problem: QPProblem
 
 
-def step_task(model: KinematicModel, structure: StepStructure, settings: TrackerSettings, batch: BatchSetup,
+def step_problem(model: KinematicModel, structure: StepStructure, settings: TrackerSettings, batch: BatchSetup,
               s: torch.Tensor, at: Evaluation, kin: StepKinematics, dt: float | torch.Tensor,
-              weights: Weights = (None, None), context: StepContext | None = None) -> StepTask:
+              weights: Weights = (None, None), context: StepContext | None = None) -> StepProblem:
     """Residuals r against `at`'s targets, corrected velocities v* = v + K r, the normal equations of
     ||v* - J nu||^2 + lambda ||nu||^2 (H in the tree's structured form, and None, when the batch
     solves on it), the joint limits as velocity bounds and the coupled limits as rows, for the
@@ -47,7 +47,7 @@ def step_task(model: KinematicModel, structure: StepStructure, settings: Tracker
     v_p = corrected_velocity(at.linear_velocity, r_p, structure.position_gain)
     v_o = corrected_velocity(at.angular_velocity, r_o, structure.orientation_gain)
     damping = settings.damping
-    objective = normal_equations(structure.task, kin.joint_axes, kin.position_jacobian, v_p, v_o, damping,
+    objective = normal_equations(structure.targets, kin.joint_axes, kin.position_jacobian, v_p, v_o, damping,
                                  w_position=weights[0], w_orientation=weights[1], hessian=not batch.structured)
     tree = TreeHessian.from_targets(given(structure.tree), kin.joint_axes, damping, r_p.shape[1],
                                     w_position=weights[0], w_orientation=weights[1]) if batch.structured else None
@@ -61,7 +61,7 @@ def step_task(model: KinematicModel, structure: StepStructure, settings: Tracker
             H, g = given(H) + H_i, g + g_i
         rows = stacked_rows(([rows] if rows else []) + [r for x in structure.limits if (r := x.rows(context))])
         equalities = stacked_rows([e for x in structure.limits if (e := x.equalities(context)) is not None])
-    return StepTask(r_p, r_o, QPProblem(H, g, bounds.lower, bounds.upper, rows.G if rows else None,
+    return StepProblem(r_p, r_o, QPProblem(H, g, bounds.lower, bounds.upper, rows.G if rows else None,
                                         rows.h if rows else None, tree, equalities.G if equalities else None,
                                         equalities.h if equalities else None))
 
@@ -76,7 +76,7 @@ def _coupled_rows(model: KinematicModel, settings: TrackerSettings, batch: Batch
     return LinearRows(batch.linear_rows, linear_limit_bounds(s, limits.A, limits.b, settings.limits, dt))
 
 
-def tracking_errors(at: Evaluation, kin: StepKinematics, task: StepTask,
+def tracking_errors(at: Evaluation, kin: StepKinematics, task: StepProblem,
                     valid: tuple[torch.Tensor, torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """The step's mnte [B] (the state at the step's start against the targets at that instant, over the
     valid orientation targets) and residual norms [B,n_p+n_o] (0 for dropped targets); valid:
