@@ -40,7 +40,7 @@ def test_a_turned_sensor_changes_the_tracked_result_by_about_its_size(one_thread
     measured = turned.inject(walk)
     with_, without = Subject(turned.correct(measured), urdf, model), Subject(measured, urdf, model)
     analyse_subjects([with_, without], LINKS, DEFAULT_GAIN, False, 50)
-    size, where = contribution.change(with_, without)
+    size, where = contribution.change(contribution.of_analysis(*with_.current), contribution.of_analysis(*without.current))
     assert low <= size <= high, (size, where)
 
 

@@ -20,12 +20,16 @@ their floors in rate units.
 from __future__ import annotations
 
 import math
-from typing import Callable, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import torch
 
+from ...method import so3
 from ...method.kinematics import KinematicModel
+from ..evaluation import link_motion
 from . import elimination
+from .analysis import Analysis, sequence_of, track
+from .chunks import Chunking
 from .subject import Subject, analyse_subjects
 
 VISIBLE = 1.0  # deg
@@ -41,27 +45,73 @@ def _rms(x: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
     return x.square().nanmean(0).sqrt()
 
 
-def change(with_: Subject, without: Subject, transient: float = TRANSIENT) -> tuple[float, str]:
+class Tracked(NamedTuple):
+    """What `change` compares of a tracked recording: time [T], the model's joint names, joint angles
+    s [T,n], base rotation [T,3,3], tracked links and each one's residual angle [T,L] (rad, NaN where
+    its streams are not valid)."""
+
+    time: torch.Tensor
+    joint_names: tuple[str, ...]
+    s: torch.Tensor
+    base_rotation: torch.Tensor
+    links: tuple[str, ...]
+    angle: torch.Tensor
+
+
+def of_analysis(analysis: Analysis, b: int) -> Tracked:
+    """Subject b of an analysis as `change` compares it (the angle of its residual r, whose norm is
+    the angle's sine)."""
+    angle = torch.where(analysis.valid[:, b], torch.asin(analysis.r[:, b].norm(dim=-1).clamp(max=1.0)), torch.nan)
+    return Tracked(analysis.time, analysis.model.joint_names, analysis.s[:, b], analysis.trajectory.base_rotation[:, b],
+                   analysis.links, angle)
+
+
+def change(with_: Tracked, without: Tracked, transient: float = TRANSIENT) -> tuple[float, str]:
     """deg, and where: the largest rms change, after `transient` seconds, of a joint angle (the joints
     both models have), of the base's orientation, or of a link's residual angle, between two tracked
-    subjects of the same recording (one with an effect, one without)."""
-    (a, i), (b, j) = with_.current, without.current
+    runs of the same recording (one with an effect, one without)."""
+    a, b = with_, without
     keep = a.time >= a.time[0] + (transient if float(a.time[-1] - a.time[0]) > 2 * transient else 0.0)
-    shared = [n for n in a.model.joint_names if n in b.model.joint_names]
-    sa = a.s[:, i, [a.model.joint_names.index(n) for n in shared]]
-    sb = b.s[:, j, [b.model.joint_names.index(n) for n in shared]]
+    shared = [n for n in a.joint_names if n in b.joint_names]
+    sa = a.s[:, [a.joint_names.index(n) for n in shared]]
+    sb = b.s[:, [b.joint_names.index(n) for n in shared]]
     joints = torch.rad2deg(_rms(sa - sb, keep))  # [n]
-    Ra, Rb = a.trajectory.base_rotation[:, i], b.trajectory.base_rotation[:, j]  # [T,3,3]
-    cos = ((Ra.transpose(-1, -2) @ Rb).diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2
+    cos = ((a.base_rotation.transpose(-1, -2) @ b.base_rotation).diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2
     base = torch.rad2deg(_rms(torch.acos(cos.clamp(-1.0, 1.0)), keep))
-    angle = lambda an, k: torch.where(an.valid[:, k], torch.asin(an.r[:, k].norm(dim=-1).clamp(max=1.0)),  # noqa: E731
-                                      torch.nan)  # [T,L]
-    links = torch.rad2deg(_rms(angle(a, i) - angle(b, j), keep))  # [L]
+    links = torch.rad2deg(_rms(a.angle - b.angle, keep))  # [L]
     found = [(float(v), f"the {name} angle") for name, v in zip(shared, joints.tolist())]
     found += [(float(base), "the base's orientation")]
     found += [(float(v), f"the {name} residual") for name, v in zip(a.links, links.tolist())]
     found = [f for f in found if math.isfinite(f[0])]
     return max(found) if found else (0.0, "nothing")
+
+
+def tracked(variants: Sequence[Subject], links, gain: float, progress: bool) -> list[Tracked]:
+    """Each of `variants` tracked (as the loop's analyses track: one batch per model, the chunking
+    its subject's), without the rest of an analysis: what `change` compares."""
+    links = tuple(links)
+    groups: dict[int, list[int]] = {}
+    for k, v in enumerate(variants):
+        groups.setdefault(id(v.model), []).append(k)
+    out: list[Tracked | None] = [None] * len(variants)
+    for members in groups.values():
+        model, recordings = variants[members[0]].model, [variants[k].recording for k in members]
+        chunking = Chunking(all(variants[k].chunking.on for k in members))
+        trajectory = track(model, recordings, links, gain, progress, chunking=chunking)
+        if not chunking.on:  # as analyse_subjects: the chunks disagreed, their subject tracks in one piece
+            for k in members:
+                variants[k].chunking.on = False
+        sequence = sequence_of(recordings, links, model.dtype)
+        R_hat = link_motion(model, trajectory, links)[0]
+        R_m, w_m = sequence.rotation, sequence.angular_velocity
+        valid = torch.isfinite(R_m).flatten(-2).all(-1) & torch.isfinite(w_m).all(-1)
+        valid = valid & torch.cat((valid[:1], valid[:-1])) & torch.cat((valid[1:], valid[-1:]))  # as analyse's
+        r = so3.skew_vee(torch.where(valid[..., None, None], R_m, R_hat) @ R_hat.transpose(-1, -2))
+        angle = torch.where(valid, torch.asin(r.norm(dim=-1).clamp(max=1.0)), torch.nan)
+        for b, k in enumerate(members):
+            out[k] = Tracked(sequence.time, model.joint_names, trajectory.joint_positions[:, b],
+                             trajectory.base_rotation[:, b], links, angle[:, b])
+    return [t for t in out if t is not None]
 
 
 def drop_invisible(subjects: Sequence[Subject], links, gain: float, progress: bool, max_samples: int,
@@ -73,10 +123,10 @@ def drop_invisible(subjects: Sequence[Subject], links, gain: float, progress: bo
              if v[1].kind in SEEN_IN_ORIENTATIONS]
     if not found:
         return
-    elimination.track([], found, links, gain, progress, max_samples)
+    runs = tracked([v for _, _, v in found], links, gain, progress)
     moved: dict[int, Subject] = {}
-    for s, effect, v in found:
-        size, where = change(s, v)
+    for (s, effect, _), run in zip(found, runs):
+        size, where = change(of_analysis(*s.current), run)
         effect.params["contribution_deg"] = size
         if size >= VISIBLE:
             continue
