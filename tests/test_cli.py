@@ -110,6 +110,26 @@ def test_track_a_scenario_end_to_end_with_report_and_trajectory(tmp_path, cli):
     assert code == 2 and "exists; add --force" in err
 
 
+def test_track_with_contacts_com_and_posture_reports_each_tasks_error(tmp_path, cli):
+    """--contacts auto finds the feet's stance in a first run and holds them there: each foot's slide
+    per phase before and after in the report (after no more than before), the centre of mass' offset
+    and the posture's distance beside, and the rerun recording written with them."""
+    report = tmp_path / "walk.json"
+    code, out, err = cli("track", "--scenario", "walking", "--model", "human48", "--duration", "4", "--contacts", "auto",
+                         "--com", "0.05", "--posture", "1e-3", "--report", str(report), "--rrd", str(tmp_path / "w.rrd"),
+                         "--quiet")
+    assert code == 0, err
+    tasks = json.loads(report.read_text())["tasks"]
+    assert {"contact RightFoot", "contact LeftFoot", "centre of mass over the feet", "posture"} == set(tasks)
+    for foot in ("RightFoot", "LeftFoot"):
+        before, after = tasks[f"contact {foot}"]["slide_before"], tasks[f"contact {foot}"]["slide_after"]
+        assert before["phases"] == after["phases"]
+        if after["phases"]:
+            assert after["max_mm"] <= before["max_mm"]
+    assert tasks["centre of mass over the feet"]["median_offset_m"] < 0.5 and tasks["posture"]["median_rms_rad"] < 1.0
+    assert (tmp_path / "w.rrd").stat().st_size > 0
+
+
 def test_track_compile_replays_the_step_and_reports_what_the_eager_step_reports(tmp_path, cli, monkeypatch):
     import torchik.method.captured as captured
 

@@ -15,8 +15,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ..errors import InputError
 from ..io.plausible import Plausibility
 from ..method.models import MODELS
@@ -29,9 +27,10 @@ from ..pipelines.contacts import (
     SPEED,
     CentreOfMassOffsets,
     LinkPositions,
+    PostureDistance,
     contact_mask,
-    foot_slide,
-    slide_series,
+    log_tasks,
+    task_report,
     tracking_tasks,
 )
 from ..pipelines.track import SETTLE
@@ -177,20 +176,21 @@ def run(args: argparse.Namespace) -> int:
     masks = {link: contact_mask(before.position[:, k], before.time) for k, link in enumerate(contacts)} if before else {}
     tasks, limits = tracking_tasks(model, args.model, contacts, masks, args.com, args.posture, args.contact_weight)
     with _outputs(args, model, subject, links, position_links) as outputs:  # written as the run goes
-        after, com = LinkPositions(model, contacts), CentreOfMassOffsets(model, FEET[args.model])
-        measured = [after] if contacts else []
+        after, com, posture = LinkPositions(model, contacts), CentreOfMassOffsets(model, FEET[args.model]), PostureDistance()
+        measured = ([after] if contacts else []) + ([posture] if args.posture else [])
         summary, implausible, interrupted = track_chunks(model, recording, links, settings,
                                                          [*outputs.values(), *measured, *([com] if args.com else [])],
                                                          tasks=tasks, constraints=limits, **common)
         report = summary.report(settings, implausible, interrupted)
         if tasks or limits:
-            report["tasks"] = _task_report(args, contacts, masks, before, after, com)
+            report["tasks"] = task_report(contacts, masks, before, after, com if args.com else None,
+                                          posture if args.posture else None, args.com, args.posture)
         report.update(source=source, left_to_model=left_out, device=str(device), wall_time_s=time.perf_counter() - start)
         if not args.quiet:  # beside a report on standard output, on standard error
             _print_report(report, source, model.name or Path(model.source).stem,
                           sys.stderr if args.report == "-" else sys.stdout)
         if "rrd" in outputs and report.get("tasks"):
-            _log_tasks(outputs["rrd"], contacts, masks, after, com if args.com else None)
+            log_tasks(outputs["rrd"], contacts, masks, after, com if args.com else None)
         fault = summary.fault(report, args.max_failed)
         if fault:  # the outputs are left uncommitted: nothing is written
             print(f"torchik track: {fault}", file=sys.stderr)
@@ -274,20 +274,6 @@ def _whole(recording):
     return recording if isinstance(recording, Recording) else recording.read()
 
 
-def _log_tasks(rrd, contacts, masks, after, com) -> None:
-    """The added tasks over time in the rerun recording, under tasks/: each contact's switch and
-    slide (mm, from where its phase began), the centre of mass' offset from the feet (m)."""
-    from rerun import escape_entity_path_part as escape
-
-    time = after.time
-    for k, link in enumerate(contacts):
-        on = masks[link][:len(time)]
-        series = np.stack((on.astype(float), slide_series(after.position[:, k], on)), axis=1)
-        rrd.log_series(f"tasks/{escape(f'contact {link}')}", time, series, ["on", "slide (mm)"])
-    if com is not None and com.parts:
-        rrd.log_series(f"tasks/{escape('centre of mass over the feet')}", com.time, com.offset, ["offset (m)"])
-
-
 def _contact_weight(text: str) -> float:
     """--contact-weight: a positive number, or exact (inf: equality rows)."""
     return math.inf if text == "exact" else positive(text)
@@ -303,24 +289,6 @@ def _contact_links(args: argparse.Namespace, model) -> tuple[str, ...]:
     if unknown:
         raise InputError(f"--contacts: model {model.name!r} has no link {unknown[0]!r}; its feet: {', '.join(feet)}")
     return links
-
-
-def _task_report(args: argparse.Namespace, contacts, masks, before, after, com) -> dict:
-    """Each added task's error: a contact's slide per phase before (the run without) and after (mm),
-    the centre of mass' horizontal distance from the middle of the feet (m), the posture's weight."""
-    out: dict = {}
-    for k, link in enumerate(contacts):
-        on = masks[link][:len(after.time)]
-        out[f"contact {link}"] = dict(contact_share=float(on.mean()) if len(on) else None,
-                                      slide_before=foot_slide(before.position[:len(on), k], on),
-                                      slide_after=foot_slide(after.position[:, k], on))
-    if args.com:
-        offset = com.offset
-        out["centre of mass over the feet"] = dict(weight=args.com, median_offset_m=float(np.nanmedian(offset))
-                                                   if len(offset) else None)
-    if args.posture:
-        out["posture"] = dict(weight=args.posture)
-    return out
 
 
 def _write_outputs(args: argparse.Namespace, report: dict, outputs: dict) -> None:
@@ -364,6 +332,12 @@ def _print_report(report: dict, source: str, model_name: str, file=sys.stdout) -
     if report["steps_without_targets"]:
         print(f"    {report['steps_without_targets']} steps without any target: their MNTE and RMSE are NaN")
     for name, task in report.get("tasks", {}).items():
+        if name == "posture" and task["median_rms_rad"] is not None:
+            print(f"    posture (weight {task['weight']:g}): the joints {task['median_rms_rad']:.3f} rad rms from it "
+                  "(median)")
+        if name == "centre of mass over the feet" and task["median_offset_m"] is not None:
+            print(f"    {name} (weight {task['weight']:g}): {1e3 * task['median_offset_m']:.0f} mm off the feet's middle "
+                  f"(median)")
         if name.startswith("contact "):
             b, a = task["slide_before"], task["slide_after"]
             if a["phases"]:

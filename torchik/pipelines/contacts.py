@@ -93,6 +93,21 @@ class LinkPositions:
         return np.concatenate(self.times) if self.times else np.zeros(0)
 
 
+class PostureDistance:
+    """An output (pipelines.track) that keeps the rms [T] (rad) over the joints of subject 0's angles
+    from the zero posture (what --posture pulls towards)."""
+
+    def __init__(self) -> None:
+        self.parts: list[np.ndarray] = []
+
+    def write(self, trajectory: Trajectory, targets: TargetSequence) -> None:
+        self.parts.append(trajectory.joint_positions[:, 0].square().mean(-1).sqrt().cpu().numpy())
+
+    @property
+    def distance(self) -> np.ndarray:
+        return np.concatenate(self.parts) if self.parts else np.zeros(0)
+
+
 @dataclass
 class CentreOfMassOverFeet(Task):
     """The centre of mass held, horizontally, over the middle of the `feet` (a static balance prior,
@@ -157,3 +172,40 @@ class CentreOfMassOffsets:
     @property
     def time(self) -> np.ndarray:
         return np.concatenate(self.times) if self.times else np.zeros(0)
+
+
+def task_report(contacts, masks, before, after, com, posture, com_weight, posture_weight) -> dict:
+    """Each added task's error: a contact's slide per phase before (the run without) and after (mm),
+    the centre of mass' horizontal distance from the middle of the feet (m), the joints' rms distance
+    from the posture (rad), medians over the run (`torchik track`'s report["tasks"]). before, after:
+    LinkPositions of the contacts' links without and with them; com, posture: CentreOfMassOffsets and
+    PostureDistance (None where the task is not added)."""
+    out: dict = {}
+    for k, link in enumerate(contacts):
+        on = masks[link][:len(after.time)]
+        out[f"contact {link}"] = dict(contact_share=float(on.mean()) if len(on) else None,
+                                      slide_before=foot_slide(before.position[:len(on), k], on),
+                                      slide_after=foot_slide(after.position[:, k], on))
+    if com is not None:
+        offset = com.offset
+        out["centre of mass over the feet"] = dict(weight=com_weight, median_offset_m=float(np.nanmedian(offset))
+                                                   if len(offset) else None)
+    if posture is not None:
+        distance = posture.distance
+        out["posture"] = dict(weight=posture_weight, median_rms_rad=float(np.median(distance)) if len(distance) else None)
+    return out
+
+
+def log_tasks(rrd, contacts, masks, after, com) -> None:
+    """The added tasks over time in the rerun recording, under tasks/: each contact's switch and
+    slide (mm, from where its phase began), the centre of mass' offset from the feet (m); rrd: an
+    RrdWriter before its commit."""
+    from rerun import escape_entity_path_part as escape
+
+    time = after.time
+    for k, link in enumerate(contacts):
+        on = masks[link][:len(time)]
+        series = np.stack((on.astype(float), slide_series(after.position[:, k], on)), axis=1)
+        rrd.log_series(f"tasks/{escape(f'contact {link}')}", time, series, ["on", "slide (mm)"])
+    if com is not None and com.parts:
+        rrd.log_series(f"tasks/{escape('centre of mass over the feet')}", com.time, com.offset, ["offset (m)"])
