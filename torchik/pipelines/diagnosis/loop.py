@@ -45,7 +45,18 @@ import torch
 
 from ...io.recording import Recording
 from ...method.kinematics import KinematicModel
-from . import contribution, elimination, frames, jointfit, joints, placement, posture, preference, refinement
+from . import (
+    contribution,
+    elimination,
+    frames,
+    jointfit,
+    joints,
+    placement,
+    posture,
+    preference,
+    refinement,
+    shared_drift,
+)
 from .analysis import DEFAULT_GAIN, joint_summary, link_summary, noise_floor
 from .candidates import KINDS
 from .effect import SIGNIFICANT, Effect
@@ -331,7 +342,8 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
         elimination.track([], found, links, gain, progress, max_samples)
         elimination.eliminate(found, links, gain, threshold, progress, max_samples, say,
                               lambda s, key: errors(*s.current).overall[key], WORSE)
-    if eliminate:  # what is left must change what a report shows
+    if eliminate:  # a drift its gyro shares named as two effects, then what changes nothing a report shows
+        shared_drift.merge(subjects, links, gain, progress, max_samples, WORSE, say)
         contribution.drop_invisible(subjects, links, gain, progress, max_samples, say)
     fits = jointfit.refit(subjects, links, gain, progress, max_samples) if joint else [None] * len(subjects)
     _drop_negligible(subjects, links, gain, progress, max_samples)
