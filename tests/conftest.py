@@ -20,7 +20,7 @@ REFERENCE = SHARED / "reference-models"
 
 
 # a test (or a parameter) that reads ../shared/data: skipped, saying so, on a clone without it
-needs_shared = pytest.mark.skipif(not DATA.is_dir(), reason=f"{DATA} absent: ../shared is not beside this checkout")
+skip_without_shared = pytest.mark.skipif(not DATA.is_dir(), reason=f"{DATA} absent: ../shared is not beside this checkout")
 
 
 def shared_file(relative: str | Path, root: Path = DATA) -> Path:

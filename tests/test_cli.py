@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import needs_shared, shared_file
+from conftest import shared_file, skip_without_shared
 
 from torchik.cli import build_parser
 
@@ -157,7 +157,7 @@ def test_track_a_recording_file_and_refuse_bad_input(tmp_path, cli):
     assert code == 2 and "no built-in map fits" in err and "the closest" in err
 
 
-@pytest.mark.parametrize("session", ["written", pytest.param("shared", marks=needs_shared)])
+@pytest.mark.parametrize("session", ["written", pytest.param("shared", marks=skip_without_shared)])
 def test_track_through_a_map_with_calibration(cli, session, request):
     """A Plug-in Gait walk and its static trial: the session the tests write (conftest's pig_session)
     or the real HC002 one of ../shared/data."""

@@ -11,7 +11,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 import torch
-from conftest import needs_shared, shared_file
+from conftest import shared_file, skip_without_shared
 from written import XSENS_SENSORS, sensor_placements, xsens_skeleton
 
 from torchik.io import RecordingError, angular_velocity_from_orientations, read_mvnx
@@ -166,7 +166,7 @@ def test_quaternions_of_rotations_round_trip_with_a_non_negative_w():
     np.testing.assert_allclose(so3.quaternion_to_matrix(torch.from_numpy(q)).numpy(), R, atol=1e-12)
 
 
-@needs_shared
+@skip_without_shared
 def test_the_real_mvnx_file_angular_velocity_agrees_with_its_orientations():
     rec = read_mvnx(shared_file("mvnx/test_mocap.mvnx"))
     assert rec.orientation.shape == (112, 23, 3, 3) and rec.meta["mvnx_version"] == "4"

@@ -5,7 +5,7 @@ uniform motion; the command writes what a position controller needs."""
 import numpy as np
 import pytest
 import torch
-from conftest import needs_shared, shared_file
+from conftest import shared_file, skip_without_shared
 
 from torchik.cli import main
 from torchik.io import Recording, save_recording
@@ -106,7 +106,7 @@ def test_bad_input_is_refused_with_exit_code_2(tmp_path, walk, capsys, extra, me
     assert message in capsys.readouterr().err and not (tmp_path / "icub.npz").exists()
 
 
-@pytest.mark.parametrize("source", ["written", pytest.param("shared", marks=needs_shared)])
+@pytest.mark.parametrize("source", ["written", pytest.param("shared", marks=skip_without_shared)])
 def test_an_xsens_recording_retargets_within_the_limits(tmp_path, source, request):
     """The MVN export the tests write (conftest's mvn_export) and the real one of ../shared/data."""
     path = request.getfixturevalue("mvn_export").path if source == "written" else shared_file("mvnx/test_mocap.mvnx")
