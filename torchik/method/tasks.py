@@ -84,14 +84,6 @@ class Task:
         WJ = w.unsqueeze(-1) * J
         return J.transpose(1, 2) @ WJ, -(WJ.transpose(1, 2) @ wanted.unsqueeze(-1)).squeeze(-1)
 
-    def error(self, context: StepContext) -> torch.Tensor:
-        """[B] the residual's norm over its active rows (the task's units: m, rad), NaN where none is."""
-        r, _, _, active = self.terms(context)
-        if active is None:
-            return r.norm(dim=-1)
-        rows = active.sum(-1)
-        return torch.where(rows > 0, (r * active).norm(dim=-1), torch.nan)
-
 
 @dataclass
 class OrientationTask(Task):

@@ -41,22 +41,6 @@ def contact_mask(position: np.ndarray, time: np.ndarray, height: float = HEIGHT,
     return (z - ground < height) & (np.linalg.norm(velocity, axis=-1) < speed)
 
 
-def foot_slide(position: np.ndarray, on: np.ndarray) -> dict:
-    """The link's slide over its contact phases (`on` [T] runs), from its origin [T,3]: per phase the
-    largest horizontal distance from where it began (mm); their mean and largest, and how many."""
-    slides, start = [], None
-    for k in range(len(on) + 1):
-        if k < len(on) and on[k]:
-            start = k if start is None else start
-            continue
-        if start is not None and k - start >= 2:
-            travel = np.linalg.norm(position[start:k, :2] - position[start, :2], axis=-1)
-            slides.append(1e3 * float(np.nanmax(travel)))
-        start = None
-    return dict(phases=len(slides), mean_mm=float(np.mean(slides)) if slides else None,
-                max_mm=float(np.max(slides)) if slides else None)
-
-
 def slide_series(position: np.ndarray, on: np.ndarray) -> np.ndarray:
     """[T] mm: while `on`, the horizontal distance of the link's origin [T,3] from where the contact
     phase began; NaN while off (what the rerun recording draws)."""
@@ -67,6 +51,18 @@ def slide_series(position: np.ndarray, on: np.ndarray) -> np.ndarray:
         if start is not None:
             out[k] = 1e3 * np.linalg.norm(position[k, :2] - position[start, :2])
     return out
+
+
+def foot_slide(position: np.ndarray, on: np.ndarray) -> dict:
+    """The link's slide over its contact phases (`on` [T] runs of 2 samples or more), from its origin
+    [T,3]: per phase the largest horizontal distance from where it began (mm, `slide_series`); their
+    mean and largest, and how many."""
+    series = slide_series(position, on)
+    starts = np.flatnonzero(on & ~np.concatenate(([False], on[:-1])))
+    ends = np.append(starts[1:], len(on))
+    slides = [float(np.nanmax(series[a:b])) for a, b in zip(starts, ends) if on[a:b].sum() >= 2]
+    return dict(phases=len(slides), mean_mm=float(np.mean(slides)) if slides else None,
+                max_mm=float(np.max(slides)) if slides else None)
 
 
 class LinkPositions:

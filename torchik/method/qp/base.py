@@ -34,10 +34,7 @@ class QPProblem:
     @property
     def equalities(self) -> tuple[torch.Tensor, torch.Tensor] | None:
         """(A [B,e,N], b [B,e]) of the equality rows A x = b, or None without any."""
-        if self.A is None:
-            return None
-        assert self.b is not None, "a QPProblem's A comes with its b"
-        return self.A, self.b
+        return _pair(self.A, self.b, "A")
 
     @property
     def dense_hessian(self) -> torch.Tensor:
@@ -50,10 +47,7 @@ class QPProblem:
     @property
     def rows(self) -> tuple[torch.Tensor, torch.Tensor] | None:
         """(G [B,m,N], h [B,m]) of the linear rows G x <= h, or None without any."""
-        if self.G is None:
-            return None
-        assert self.h is not None, "a QPProblem's G comes with its h"
-        return self.G, self.h
+        return _pair(self.G, self.h, "G")
 
     def active(self, x: torch.Tensor, tolerance: float = 1e-9) -> torch.Tensor:
         """[B] bounds (lower or upper) and linear rows that x [B,N] touches (infinite bounds never)."""
@@ -62,6 +56,14 @@ class QPProblem:
             G, h = rows
             count = count + (row_values(G, x) >= h - tolerance).sum(-1)
         return count
+
+
+def _pair(rows: torch.Tensor | None, rhs: torch.Tensor | None, name: str) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """(rows, right-hand side), or None without rows: a problem's rows come with theirs."""
+    if rows is None:
+        return None
+    assert rhs is not None, f"a QPProblem's {name} comes with its right-hand side"
+    return rows, rhs
 
 
 @dataclass(frozen=True)

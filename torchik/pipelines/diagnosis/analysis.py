@@ -214,10 +214,9 @@ def analyse(model: KinematicModel, recordings: Sequence[Recording], links, traje
     time = seq.time
     R_hat, w_hat = link_motion(model, trajectory, links)
     R_m, w_m = seq.rotation, seq.angular_velocity
-    valid = torch.isfinite(R_m).flatten(-2).all(-1) & torch.isfinite(w_m).all(-1)
+    valid, r = orientation_residual(R_m, w_m, R_hat)
     R_safe = torch.where(valid[..., None, None], R_m, R_hat)
     w_safe = torch.where(valid[..., None], w_m, w_hat)
-    r = so3.skew_vee(R_safe @ R_hat.transpose(-1, -2))
     r_link = (R_hat.transpose(-1, -2) @ r[..., None]).squeeze(-1)
     T, B, L = R_safe.shape[:3]  # every subject's links at once: [T,B*L,3,3]
     w_fd = torch.from_numpy(angular_velocity_from_orientations(R_safe.reshape(T, B * L, 3, 3).numpy(),
@@ -252,6 +251,14 @@ def analyse(model: KinematicModel, recordings: Sequence[Recording], links, traje
                     p_m - p_hat, torch.nan_to_num(e_p), valid, derived, velocity_derived, s, active, sample, J, A, rows,
                     axes, trajectory, tuple(reference_pose(r) for r in recordings),
                     tuple(streams.shared_clock(r) for r in recordings))
+
+
+def orientation_residual(R_m: torch.Tensor, w_m: torch.Tensor, R_hat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """valid [T,B,L] (both measured streams finite) and the residual r = sk(R_m R_hat^T)^vee [T,B,L,3]
+    (world; |r| the sine of the angle; zero where not valid) of measured rotations R_m and angular
+    velocities w_m against estimated rotations R_hat."""
+    valid = torch.isfinite(R_m).flatten(-2).all(-1) & torch.isfinite(w_m).all(-1)
+    return valid, so3.skew_vee(torch.where(valid[..., None, None], R_m, R_hat) @ R_hat.transpose(-1, -2))
 
 
 def inverse_normal(J: torch.Tensor, damping: float = 1e-9) -> torch.Tensor:

@@ -24,11 +24,10 @@ from typing import Callable, NamedTuple, Sequence
 
 import torch
 
-from ...method import so3
 from ...method.kinematics import KinematicModel
 from ..evaluation import link_motion
 from . import elimination
-from .analysis import Analysis, sequence_of, track
+from .analysis import Analysis, orientation_residual, sequence_of, track
 from .chunks import Chunking
 from .subject import Subject, analyse_subjects
 
@@ -103,10 +102,8 @@ def tracked(variants: Sequence[Subject], links, gain: float, progress: bool) -> 
                 variants[k].chunking.on = False
         sequence = sequence_of(recordings, links, model.dtype)
         R_hat = link_motion(model, trajectory, links)[0]
-        R_m, w_m = sequence.rotation, sequence.angular_velocity
-        valid = torch.isfinite(R_m).flatten(-2).all(-1) & torch.isfinite(w_m).all(-1)
+        valid, r = orientation_residual(sequence.rotation, sequence.angular_velocity, R_hat)
         valid = valid & torch.cat((valid[:1], valid[:-1])) & torch.cat((valid[1:], valid[-1:]))  # as analyse's
-        r = so3.skew_vee(torch.where(valid[..., None, None], R_m, R_hat) @ R_hat.transpose(-1, -2))
         angle = torch.where(valid, torch.asin(r.norm(dim=-1).clamp(max=1.0)), torch.nan)
         for b, k in enumerate(members):
             out[k] = Tracked(sequence.time, model.joint_names, trajectory.joint_positions[:, b],
