@@ -7,14 +7,16 @@ from pathlib import Path
 from .bvh import read_bvh
 from .c3d import read_c3d
 from .mvnx import read_mvnx
+from .opensense import read_opensense
 from .recording import Recording, RecordingError, readable_file
 from .recording_file import RecordingFile, load_recording
 
-READERS = {".npz": load_recording, ".mvnx": read_mvnx, ".bvh": read_bvh, ".c3d": read_c3d}
+# .sto: OpenSense quaternion tables (OpenSim tables of other data types are refused by name)
+READERS = {".npz": load_recording, ".mvnx": read_mvnx, ".bvh": read_bvh, ".c3d": read_c3d, ".sto": read_opensense}
 
 
 def read(path: str | Path) -> Recording:
-    """A Recording from any supported file (.npz, .mvnx, .bvh, .c3d), by its suffix."""
+    """A Recording from any supported file (.npz, .mvnx, .bvh, .c3d, .sto), by its suffix."""
     if Path(path).is_dir():
         readable_file(path)  # raises, naming it a folder whatever its suffix
     suffix = Path(path).suffix.lower()

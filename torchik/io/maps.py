@@ -9,7 +9,8 @@ R_link = R_segment C, given as one of
 - `calibrate = true`: C = R_segment(k)^T R_link(reference pose), from a reference frame k of the
   recording in which the subject holds the map's `reference_pose` ("tpose": the human models'
   zero configuration; "npose": arms down), facing the heading of the base segment's
-  `base_forward_axis` (as the IMU placers of Xsens MVN and OpenSense do from a static pose).
+  `base_forward_axis` ("x", "-z", ...: the base segment's axis that points forward in that pose;
+  as the IMU placers of Xsens MVN and OpenSense do from a static pose).
 
 Angular velocities are world-frame and unchanged by a constant offset; the base position is the
 base segment's. A link whose segments the recording lacks (a clinical lower-body marker set has no
@@ -70,6 +71,16 @@ def _rpy(values, where: str) -> np.ndarray:
     return so3.rpy_to_matrix(torch.tensor([float(v) for v in values], dtype=torch.float64)).numpy()
 
 
+HEADING_AXES = ("x", "y", "z", "-x", "-y", "-z")  # a base segment's axis that points forward in the reference pose
+
+
+def heading_direction(R: np.ndarray, axis: str) -> np.ndarray:
+    """The world direction [3] of a segment's signed axis ("x", "-z", ...), R [3,3] segment to world."""
+    if axis not in HEADING_AXES:
+        raise RecordingError(f"heading axis {axis!r}: expected one of {', '.join(HEADING_AXES)}")
+    return (-1.0 if axis.startswith("-") else 1.0) * R[:, "xyz".index(axis[-1])]
+
+
 def calibration_frame(text: str) -> int | str:
     """A map's reference frame as written by a user: a frame index, or 'rest' (a BVH's rest pose).
     ValueError otherwise."""
@@ -126,8 +137,8 @@ def load_map(name_or_path: str | Path) -> LinkMap:
         raise RecordingError(f"{path}: base.link {base.get('link')!r} is not one of the mapped links")
     calibration = spec.get("calibration", {})
     pose = calibration.get("reference_pose")
-    if calibration.get("base_forward_axis") not in (None, "x", "y", "z"):
-        raise RecordingError(f"{path}: calibration.base_forward_axis must be 'x', 'y' or 'z'")
+    if calibration.get("base_forward_axis") not in (None, *HEADING_AXES):
+        raise RecordingError(f"{path}: calibration.base_forward_axis must be one of {', '.join(HEADING_AXES)}")
     if any(e.offset is None for e in entries) and pose not in ("tpose", "npose"):
         raise RecordingError(f"{path}: calibrated links need calibration.reference_pose = 'tpose' or 'npose'")
     base_entry = next(e for e in entries if e.link == base["link"])
@@ -227,11 +238,13 @@ def reference_configuration(model: KinematicModel, pose: str) -> torch.Tensor:
     return s
 
 
-def calibrate(link_map: LinkMap, recording: Recording, model: KinematicModel, frame: int | str | None = None) -> LinkMap:
+def calibrate(link_map: LinkMap, recording: Recording, model: KinematicModel, frame: int | str | None = None,
+              heading_axis: str | None = None) -> LinkMap:
     """The map with every `calibrate = true` offset computed from `frame` of `recording`, in which the
     subject holds the map's reference pose (for instance a static trial's frame), or from the BVH
-    skeleton's rest pose (frame "rest"). Default: the map's calibration.frame, else 0. Apply the
-    result to that recording or to other trials of the same session."""
+    skeleton's rest pose (frame "rest"). Default: the map's calibration.frame, else 0. heading_axis:
+    the base segment's axis pointing forward in that frame ("x", "-z", ...; default the map's
+    base_forward_axis). Apply the result to that recording or to other trials of the same session."""
     todo = [i for i, e in enumerate(link_map.entries) if e.offset is None]
     if not todo:
         return link_map
@@ -263,8 +276,9 @@ def calibrate(link_map: LinkMap, recording: Recording, model: KinematicModel, fr
         time_s = float(recording.time[k])
         if np.isnan(R_source).any():
             raise RecordingError(f"calibration frame {k} has missing segments; choose a frame where all are seen")
-    if frame != "rest" and link_map.base_forward_axis:
-        axis = R_source[link_map.links.index(link_map.base_link)][:, "xyz".index(link_map.base_forward_axis)]
+    heading_axis = heading_axis or link_map.base_forward_axis
+    if frame != "rest" and heading_axis:
+        axis = heading_direction(R_source[link_map.links.index(link_map.base_link)], heading_axis)
         heading = so3.rpy_to_matrix(torch.tensor([0.0, 0.0, math.atan2(axis[1], axis[0])], dtype=torch.float64)).numpy()
     R_reference = heading @ kin.rotation[0].cpu().numpy()  # the model in the pose, facing the subject's way
     entries = list(link_map.entries)
@@ -272,15 +286,15 @@ def calibrate(link_map: LinkMap, recording: Recording, model: KinematicModel, fr
         e = entries[i]
         entries[i] = replace(e, offset=R_source[i].T @ R_reference[i])  # keeps alternatives and optional
     calibrated = dict(frame=k, time_s=time_s, reference_pose=link_map.reference_pose,
-                      recording=recording.meta.get("source"))
+                      recording=recording.meta.get("source"), heading_axis=heading_axis)
     return replace(link_map, entries=tuple(entries), calibration=calibrated)
 
 
 def apply_map(recording: Recording, link_map: LinkMap, model: KinematicModel | None = None,
-              calibration_frame: int | str | None = None) -> Recording:
+              calibration_frame: int | str | None = None, heading_axis: str | None = None) -> Recording:
     """The recording in the model's link names and frames. A map with offsets still to calibrate is
     calibrated on this recording's `calibration_frame` (an index or "rest"; default: the map's
-    calibration.frame, else 0), which needs `model`."""
+    calibration.frame, else 0) facing `heading_axis` (default the map's), which needs `model`."""
     link_map = resolve(link_map, recording.links)
     index = {name: i for i, name in enumerate(recording.links)}
     if recording.base_link != link_map.base_segment:
@@ -290,7 +304,7 @@ def apply_map(recording: Recording, link_map: LinkMap, model: KinematicModel | N
     if any(e.offset is None for e in link_map.entries):
         if model is None:
             raise RecordingError(f"map {link_map.name!r} calibrates offsets: give the model (or calibrate() first)")
-        link_map = calibrate(link_map, recording, model, calibration_frame)
+        link_map = calibrate(link_map, recording, model, calibration_frame, heading_axis)
     ids = [index[e.segment] for e in link_map.entries]
     offsets = np.stack([_given(e.offset) for e in link_map.entries])
     R = recording.orientation[:, ids] @ offsets
@@ -307,16 +321,18 @@ def apply_map(recording: Recording, link_map: LinkMap, model: KinematicModel | N
 
 
 def map_recording(recording: Recording, map_name: str | Path, model: KinematicModel, static: Recording | None = None,
-                  calibration_frame: int | str | None = None) -> tuple[Recording, LinkMap]:
+                  calibration_frame: int | str | None = None,
+                  heading_axis: str | None = None) -> tuple[Recording, LinkMap]:
     """A recording through a map (a built-in name, a .toml file, or "auto": `choose_map`'s) into `model`'s links: the map's
     offsets calibrated on `static`, a static trial, when given (else on the recording itself,
-    for a map that calibrates). Returns the mapped recording and the map used."""
+    for a map that calibrates), the subject facing the base segment's `heading_axis` there (default
+    the map's base_forward_axis). Returns the mapped recording and the map used."""
     if str(map_name) == "auto":
         map_name = choose_map(recording.links, model_family(model))
     link_map = load_map(map_name)
     if static is not None:
-        link_map = calibrate(link_map, static, model, calibration_frame)
-    return apply_map(recording, link_map, model, calibration_frame), link_map
+        link_map = calibrate(link_map, static, model, calibration_frame, heading_axis)
+    return apply_map(recording, link_map, model, calibration_frame, heading_axis), link_map
 
 
 def _given(offset: np.ndarray | None) -> np.ndarray:

@@ -62,7 +62,7 @@ class TrackSummary:
             steps, subjects = self.non_finite[name]
             self.non_finite[name] = (steps + int(bad.any(1).sum()),
                                      bad.any(0) if subjects is None else subjects | bad.any(0))
-        if self.position_links is not None:
+        if self.position_links:  # () when nothing measures a position (an IMU set's base left free)
             self.position_error.append(position_errors(self.model, trajectory, sequence, self.position_links)[:, 0])
 
     def report(self, settings: TrackerSettings, implausible: int, interrupted: bool) -> dict:
@@ -85,7 +85,7 @@ class TrackSummary:
         )
         if settings.compile:
             report["compiled_steps"] = self.compiled_steps
-        if self.position_links is not None:
+        if self.position_links:
             error, t = self.position_error.values().cpu(), time.cpu()  # [T,P], [T]
             window = t >= t[0] + report["statistics_from_s"]  # the other statistics' window
             report["position_error_m"] = {}
