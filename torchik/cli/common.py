@@ -37,8 +37,8 @@ def frame_argument(text: str) -> int | str:
 
 
 def add_map_arguments(parser: argparse.ArgumentParser, target: str = "the model's links") -> None:
-    """--map, --calibration and --calibration-frame: how a recording's segments become `target`."""
-    from ..io.maps import built_in_maps
+    """--map, --calibration, --calibration-frame and --heading-axis: how a recording's segments become `target`."""
+    from ..io.maps import HEADING_AXES, built_in_maps
 
     parser.add_argument("--map", help=f"link map from the recording's segments to {target}: a built-in name "
                                       f"({', '.join(built_in_maps())}), a .toml file, or auto (the built-in map "
@@ -48,6 +48,10 @@ def add_map_arguments(parser: argparse.ArgumentParser, target: str = "the model'
     parser.add_argument("--calibration-frame", type=frame_argument, default=None,
                         help="the frame holding the reference pose: an index, or 'rest' for a BVH rest pose "
                              "(default: the map's own choice, else 0)")
+    parser.add_argument("--heading-axis", choices=HEADING_AXES, default=None,
+                        help="the base segment's axis that points forward in the calibration frame (default the "
+                             "map's: x for Plug-in Gait's pelvis, -z for OpenSense's pelvis_imu, as its "
+                             "base_heading_axis)")
 
 
 def check_outputs(paths, force: bool, inputs=()) -> None:

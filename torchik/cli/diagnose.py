@@ -77,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from ..io import read
+    from ..io.base_position import measures_base_position, standing_base_position, unmeasured_base
     from ..method.kinematics import KinematicModel
     from ..method.models import TRACKED_LINKS, human_urdf
     from ..pipelines.diagnosis.loop import diagnose
@@ -107,7 +108,11 @@ def run(args: argparse.Namespace) -> int:
         from ..io import map_recording
 
         static = read(args.calibration) if args.calibration else None
-        recording, _ = map_recording(recording, map_name, model, static, args.calibration_frame)
+        recording, _ = map_recording(recording, map_name, model, static, args.calibration_frame, args.heading_axis)
+    if not measures_base_position(recording):  # an IMU set's: the base held where the model stands
+        recording, note = unmeasured_base(recording, "held", standing_base_position(model))
+        if not args.quiet:
+            print(f"base position {note}")
     links = [name for name in TRACKED_LINKS[args.model] if name in recording.links]
     if model.base_link not in links:
         raise InputError(f"{args.recording}: no {model.base_link} among its segments {list(recording.links)}; "
@@ -135,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
         again += [f"--map {args.map}"] if args.map else []
         again += [f"--calibration {args.calibration}"] if args.calibration else []
         again += [f"--calibration-frame {args.calibration_frame}"] if args.calibration_frame is not None else []
+        again += [f"--heading-axis {args.heading_axis}"] if args.heading_axis else []
         again += [f"--sensor-calibration {paths['calibration']}"]
         again += [f"--urdf {paths['urdf']}"] if "urdf" in paths else []
         print("track again with what was found: " + " ".join(again))

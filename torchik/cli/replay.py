@@ -65,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
         from ..method.models import load_model
 
         static = read(args.calibration) if args.calibration else None
-        recording, _ = map_recording(recording, args.map, load_model(args.model), static, args.calibration_frame)
+        recording, _ = map_recording(recording, args.map, load_model(args.model), static, args.calibration_frame,
+                                     args.heading_axis)
     if len(recording.time) < 2:
         raise InputError(f"{args.recording}: a stream needs at least two frames")
     if not args.quiet:

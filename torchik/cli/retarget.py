@@ -32,7 +32,8 @@ def run(args: argparse.Namespace) -> int:
     map_name = args.map or default_map(recording.links, human)
     if map_name:
         static = read(args.calibration) if args.calibration else None
-        recording, _ = map_recording(recording, map_name, human, static, args.calibration_frame)
+        recording, _ = map_recording(recording, map_name, human, static, args.calibration_frame,
+                                     args.heading_axis)
     elif args.calibration:
         raise InputError("--calibration calibrates a --map; give the map too")
     threads = torch.get_num_threads()

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from ..io.base_position import BASE_POSITION_MODES
 from ..io.plausible import Plausibility
 from ..method.models import MODELS
 from ..method.qp import BACKENDS
@@ -51,6 +52,7 @@ from .common import (
 )
 
 MAX_FAILED = 0.01  # a restart now and then is recovery; one step in a hundred is a run not to trust
+OUT_SUFFIXES = (".npz", ".mot", ".sto")  # --out: torchik's trajectory, OpenSim's motion, OpenSense's errors
 
 EXAMPLES = """examples:
   torchik track --scenario walking --model human66 --rrd walk.rrd --report walk.json
@@ -128,7 +130,13 @@ def add_parser(subparsers) -> None:
                        f"faster than this (default {Plausibility.max_linear_velocity:g} m/s)")
     track.add_argument("--device", default="cpu", help="torch device: cpu (default), cuda or cuda:N")
     track.add_argument("--report", metavar="JSON", help="write the metrics here (- : standard output)")
-    track.add_argument("--out", metavar="NPZ", help="write the estimated trajectory here")
+    track.add_argument("--out", action="append", metavar="FILE",
+                       help="write the estimated trajectory here, by the suffix: .npz (torchik's), .mot (the joint "
+                            "angles as an OpenSim motion, degrees) or .sto (each IMU's orientation error, rad, as "
+                            "OpenSense's orientationErrors.sto); repeat for several")
+    track.add_argument("--base-position", choices=BASE_POSITION_MODES, default="held",
+                       help="for a recording that measures no base position (an OpenSense IMU table): hold the base "
+                            "in place (default, as OpenSense's IMU IK) or leave it free (no position target)")
     track.add_argument("--rrd", metavar="FILE", help="write a rerun recording here (.rrd): the body, targets and "
                        "diagnostics over time; open it with `rerun FILE`")
     track.add_argument("--force", action="store_true", help="overwrite existing outputs")
@@ -145,10 +153,14 @@ def run(args: argparse.Namespace) -> int:
 
     if args.rrd and Path(args.rrd).suffix != ".rrd":
         raise InputError(f"{args.rrd}: a rerun recording's name must end in .rrd (e.g. walk.rrd)")
-    if args.out == "-" or args.rrd == "-":
-        raise InputError("only --report may be - (standard output); --out and --rrd are binary files")
-    check_outputs([args.report, args.out, args.rrd], args.force, inputs=[args.input, args.calibration,
-                                                                          args.sensor_calibration, args.urdf])
+    args.out = args.out or []
+    if "-" in args.out or args.rrd == "-":
+        raise InputError("only --report may be - (standard output); --out and --rrd are files")
+    unknown = [path for path in args.out if Path(path).suffix.lower() not in OUT_SUFFIXES]
+    if unknown:
+        raise InputError(f"--out {unknown[0]}: the suffix says what to write: {', '.join(OUT_SUFFIXES)}")
+    check_outputs([args.report, *args.out, args.rrd], args.force, inputs=[args.input, args.calibration,
+                                                                           args.sensor_calibration, args.urdf])
     if not args.input and args.scenario not in SCENARIOS:
         raise InputError(f"unknown scenario {args.scenario!r}; valid: {', '.join(SCENARIOS)}")
     device = torch_device(args.device)
@@ -156,16 +168,18 @@ def run(args: argparse.Namespace) -> int:
         # one subject's tensors are too small for torch to split, and on a busy machine its idle
         # threads spin and wait for each other: a step then takes several times longer
         torch.set_num_threads(1)
-    model, subject, recording, links, source, left_out = _load(args, device)
+    model, subject, recording, links, source, left_out, base_note = _load(args, device)
     settings = TrackerSettings(position_gain=args.gain if args.position_gain is None else args.position_gain,
                                orientation_gain=args.gain if args.orientation_gain is None else args.orientation_gain,
                                scheme=args.scheme, backend=args.backend, max_gap=args.max_gap, compile=args.compile)
     settings = dataclasses.replace(settings, dt=nominal_dt(recording, settings))
     _check_stability(settings, settings.dt)
     start = time.perf_counter()
-    position_links = None
+    position_links: tuple[str, ...] | None = None
     if args.position_targets:
         position_links = (model.base_link, *[name for name in args.position_targets if name != model.base_link])
+    elif base_note and args.base_position == "free":
+        position_links = ()  # nothing measures a position: no position target
     bounds = Plausibility(max_angular_velocity=args.max_angular_velocity, max_linear_velocity=args.max_linear_velocity)
     common = dict(progress=not args.quiet, position_links=position_links, plausibility=bounds, settle=args.settle)
     contacts = _contact_links(args, model)
@@ -175,7 +189,7 @@ def run(args: argparse.Namespace) -> int:
         track_chunks(model, recording, links, settings, [before], **common)
     masks = {link: contact_mask(before.position[:, k], before.time) for k, link in enumerate(contacts)} if before else {}
     tasks, limits = tracking_tasks(model, args.model, contacts, masks, args.com, args.posture, args.contact_weight)
-    with _outputs(args, model, subject, links, position_links) as outputs:  # written as the run goes
+    with _outputs(args, model, subject, links, position_links, recording, base_note) as outputs:  # written as it goes
         after, com, posture = LinkPositions(model, contacts), CentreOfMassOffsets(model, FEET[args.model]), PostureDistance()
         measured = ([after] if contacts else []) + ([posture] if args.posture else [])
         summary, implausible, interrupted = track_chunks(model, recording, links, settings,
@@ -186,6 +200,8 @@ def run(args: argparse.Namespace) -> int:
             report["tasks"] = task_report(contacts, masks, before, after, com if args.com else None,
                                           posture if args.posture else None, args.com, args.posture)
         report.update(source=source, left_to_model=left_out, device=str(device), wall_time_s=time.perf_counter() - start)
+        if base_note:
+            report["base_position"] = base_note
         if not args.quiet:  # beside a report on standard output, on standard error
             _print_report(report, source, model.name or Path(model.source).stem,
                           sys.stderr if args.report == "-" else sys.stdout)
@@ -204,15 +220,24 @@ def run(args: argparse.Namespace) -> int:
 
 
 @contextlib.contextmanager
-def _outputs(args: argparse.Namespace, model, subject, links, position_links):
-    """The writers of --out and --rrd, by option name: each part of the run goes to them as it is
+def _outputs(args: argparse.Namespace, model, subject, links, position_links, recording, base_note: str | None):
+    """The writers of --out and --rrd, by file: each part of the run goes to them as it is
     tracked; their files appear when committed (`_write_outputs`), and none if the run fails."""
     from ..io import TrajectoryWriter
+    from ..io.opensim_out import MotionWriter, OrientationErrorWriter
 
     with contextlib.ExitStack() as stack:
         writers: dict[str, Any] = {}
-        if args.out:
-            writers["out"] = stack.enter_context(TrajectoryWriter(args.out, model))
+        segments = recording.meta.get("link_map", {}).get("segments", {})  # each link's source name (an IMU's)
+        for path in args.out:
+            suffix = Path(path).suffix.lower()
+            if suffix == ".npz":
+                writer: Any = TrajectoryWriter(path, model)
+            elif suffix == ".mot":
+                writer = MotionWriter(path, model, dict(base_position=base_note) if base_note else None)
+            else:
+                writer = OrientationErrorWriter(path, model, links, [segments.get(link, link) for link in links])
+            writers[path] = stack.enter_context(writer)
         if args.rrd:
             from ..pipelines.rrd import RrdWriter
 
@@ -224,9 +249,11 @@ def _outputs(args: argparse.Namespace, model, subject, links, position_links):
 def _load(args: argparse.Namespace, device):
     """The model (with the subject built from --subject-from, if given), the recording in its links
     (a .npz file read as its frames are needed; another format, or one mapped or calibrated, read
-    whole; or a scenario), the tracked links, a phrase naming the source, and the links the map
-    found no segment for (left to the model: no target pulls them)."""
+    whole; or a scenario), the tracked links, a phrase naming the source, the links the map
+    found no segment for (left to the model: no target pulls them), and, for a recording that
+    measures no base position, how the base is tracked (--base-position; None otherwise)."""
     from ..io import Recording, RecordingFile, map_recording, open_recording, read
+    from ..io.base_position import NOT_MEASURED, measures_base_position, standing_base_position, unmeasured_base
     from ..io.maps import default_map
     from ..method.models import TRACKED_LINKS, load_model
     from ..synthetic.scenarios import ScenarioSource
@@ -248,7 +275,8 @@ def _load(args: argparse.Namespace, device):
         map_name = args.map or default_map(recording.links, model)
         if map_name:
             static = read(args.calibration) if args.calibration else None
-            recording, link_map = map_recording(_whole(recording), map_name, model, static, args.calibration_frame)
+            recording, link_map = map_recording(_whole(recording), map_name, model, static, args.calibration_frame,
+                                                args.heading_axis)
             links = recording.links
             left_out = list(recording.meta["link_map"]["left_out"])
             source += f" through map {link_map.name!r}"
@@ -264,7 +292,12 @@ def _load(args: argparse.Namespace, device):
 
         recording = apply_calibration_file(_whole(recording), args.sensor_calibration)
         source += f" with sensor calibration {args.sensor_calibration}"
-    return model, subject, recording, links, source, left_out
+    base_note = None
+    unmeasured = args.input and (recording.meta.get("base_position") == NOT_MEASURED or (
+        isinstance(recording, Recording) and not measures_base_position(recording)))  # a file's: its meta says
+    if unmeasured:  # held where the model stands at the origin, or free
+        recording, base_note = unmeasured_base(_whole(recording), args.base_position, standing_base_position(model))
+    return model, subject, recording, links, source, left_out, base_note
 
 
 def _whole(recording):
@@ -347,6 +380,8 @@ def _print_report(report: dict, source: str, model_name: str, file=sys.stdout) -
             else:
                 print(f"    {name}: never on the ground (lower than {HEIGHT * 1e3:.0f} mm above its lowest, slower "
                       f"than {SPEED:g} m/s)")
+    if report.get("base_position"):
+        print(f"    base position {report['base_position']}")
     if report["left_to_model"]:
         print(f"    left to the model (no segment in the recording): {', '.join(report['left_to_model'])}")
     if report["failed_steps"] or len(report["segments"]) > 1:

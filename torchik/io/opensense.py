@@ -21,7 +21,7 @@ central difference, and `meta["angular_velocity"] = "derived"` says so (what the
 
 Positions: an IMU set measures none. `base_position` and `base_linear_velocity` are NaN, and
 `meta["base_position"] = "not measured"`: the tracker holds the base still or leaves it free
-(`hold_base`), it never takes zeros as data.
+(base_position.py), it never takes zeros as data.
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ import numpy as np
 import torch
 
 from ..method import so3
+from .base_position import NOT_MEASURED
 from .mvnx_writer import matrix_to_quaternion
 from .opensim_table import OpenSimTable, read_table, write_table
 from .recording import Recording, RecordingError, angular_velocity_from_orientations
@@ -42,7 +43,6 @@ OPENSIM_TO_TORCHIK = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0
 BASE_IMU = "pelvis_imu"
 NORM_TOLERANCE = 1e-2  # a quaternion further from unit norm is not an orientation (written to 4 decimals: 1e-4)
 GYRO_SUFFIX = "_angular_velocity"
-NOT_MEASURED = "not measured"  # meta["base_position"] of a recording without positions
 
 
 def read_opensense(path: str | Path, base_imu: str = BASE_IMU, sensor_to_opensim: tuple[float, float, float] | None = None,
