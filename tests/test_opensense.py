@@ -188,3 +188,12 @@ def test_opensim_reads_the_outputs(tmp_path, human48, cli):
     assert list(errors.getColumnLabels()) == list(LEGS) and errors.getNumRows() == 120
     quaternions = opensim.TimeSeriesTableQuaternion(str(source))  # what OpenSense's IMU IK reads
     assert list(quaternions.getColumnLabels()) == list(LEGS)
+
+
+def test_diagnose_takes_the_table_with_no_map(tmp_path, human48, cli):
+    t, R, _ = imu_walk(human48, frames=200)
+    source = write_opensense(tmp_path / "walk.sto", t, tuple(LEGS), R)
+    code, out, err = cli("diagnose", source, "--model", "human48", "--report", tmp_path / "diag", "--max-effects", "1",
+                         "--no-rrd")
+    assert code == 0, err
+    assert "base position not measured: held at" in out and (tmp_path / "diag" / "report.md").is_file()

@@ -91,7 +91,9 @@ def read_table(path: str | Path) -> OpenSimTable:
     duplicates = sorted({x for x in labels if labels.count(x) > 1})
     if duplicates:
         raise RecordingError(f"{path}: line {label_line}: duplicate columns {duplicates}")
-    time, cells, numbers = [], [], []
+    time: list[float] = []
+    cells: list[list[str]] = []
+    numbers: list[int] = []
     for number, line in body[1:]:
         row = split(line)
         if len(row) < len(labels):  # trailing missing cells that a writer left off: missing, not an error
