@@ -17,6 +17,7 @@ import numpy as np
 from .files import replacing
 from .recording import RecordingError, readable_file
 
+ROWS_AT_ONCE = 10_000  # rows formatted together when writing
 MISSING_CELLS = ("", "nan", "-nan", "na", "n/a")  # lower-cased: what tables write for a sample not measured
 
 
@@ -126,13 +127,13 @@ def write_table(path: str | Path, time: np.ndarray, labels, values: np.ndarray, 
     if values.shape[:2] != (len(time), len(labels)):
         raise ValueError(f"values of shape {list(values.shape)} for {len(time)} rows and {len(labels)} columns")
     cell = values if values.ndim == 3 else values[..., None]
-    formatted = np.char.mod("%.10g", cell)
-    rows = [",".join(c) for c in formatted.reshape(-1, cell.shape[-1])]
     head = ([name] if name else []) + [f"{k}={v}" for k, v in
                                        dict(header, nRows=len(time), nColumns=len(labels) + 1).items()]
+    times = np.asarray(time, dtype=np.float64)
     with replacing(path) as part, open(part, "w") as f:
         f.write("\n".join(head) + "\nendheader\n" + "\t".join(["time", *labels]) + "\n")
-        times = np.char.mod("%.10g", np.asarray(time, dtype=np.float64))
-        for t in range(len(time)):
-            f.write(times[t] + "\t" + "\t".join(rows[t * len(labels):(t + 1) * len(labels)]) + "\n")
+        for start in range(0, len(times), ROWS_AT_ONCE):  # text for a block of rows at a time: an hour is 360 000
+            block = np.char.mod("%.10g", cell[start:start + ROWS_AT_ONCE])  # [rows,C,k]
+            stamps = np.char.mod("%.10g", times[start:start + ROWS_AT_ONCE])
+            f.writelines(stamp + "\t" + "\t".join(",".join(c) for c in row) + "\n" for stamp, row in zip(stamps, block))
     return Path(path)
