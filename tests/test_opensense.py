@@ -169,9 +169,21 @@ def test_track_reads_the_table_without_a_map_and_writes_opensim_outputs(tmp_path
     assert json.loads(out)["base_position"].startswith("not measured: free")
 
 
-def test_an_unknown_output_suffix_is_refused_before_any_work(tmp_path, cli):
+def test_an_unknown_or_repeated_output_is_refused_before_any_work(tmp_path, cli):
     code, _, err = cli("track", "--scenario", "walking", "--duration", "0.2", "--out", tmp_path / "x.csv")
     assert code == 2 and "--out" in err and ".mot" in err
+    code, _, err = cli("track", "--scenario", "walking", "--duration", "0.2", "--out", tmp_path / "x.mot",
+                       "--out", tmp_path / "x.mot")
+    assert code == 2 and "given twice" in err and not (tmp_path / "x.mot").exists()
+
+
+def test_a_scenario_writes_the_opensim_outputs_under_its_link_names(tmp_path, cli):
+    code, _, err = cli("track", "--scenario", "walking", "--duration", "0.3", "--model", "human48", "--quiet",
+                       "--out", tmp_path / "walk.mot", "--out", tmp_path / "errors.sto")
+    assert code == 0, err
+    errors = read_table(tmp_path / "errors.sto")
+    assert errors.labels[0] == "Pelvis" and len(errors.labels) == 23 and len(errors.time) == 31
+    assert "base_position" not in read_motion(tmp_path / "walk.mot").header  # a scenario's base is measured
 
 
 def test_opensim_reads_the_outputs(tmp_path, human48, cli):

@@ -159,6 +159,9 @@ def run(args: argparse.Namespace) -> int:
     unknown = [path for path in args.out if Path(path).suffix.lower() not in OUT_SUFFIXES]
     if unknown:
         raise InputError(f"--out {unknown[0]}: the suffix says what to write: {', '.join(OUT_SUFFIXES)}")
+    twice = [path for path in dict.fromkeys(args.out) if args.out.count(path) > 1]
+    if twice:
+        raise InputError(f"--out {twice[0]} is given twice; give each output once")
     check_outputs([args.report, *args.out, args.rrd], args.force, inputs=[args.input, args.calibration,
                                                                            args.sensor_calibration, args.urdf])
     if not args.input and args.scenario not in SCENARIOS:
