@@ -209,3 +209,46 @@ def test_diagnose_takes_the_table_with_no_map(tmp_path, human48, cli):
                          "--no-rrd")
     assert code == 0, err
     assert "base position not measured: held at" in out and (tmp_path / "diag" / "report.md").is_file()
+
+
+def test_the_heading_axis_and_a_separate_static_table(tmp_path, human48):
+    """A pelvis IMU worn with its x axis forwards needs heading_axis "x"; the default (-z, OpenSense's)
+    then turns the subject and the flexions come out wrong. A static table calibrates a walk that
+    starts moving."""
+    from torchik.method.settings import TrackerSettings
+    from torchik.pipelines.track import track_recording
+
+    t, R, truth = imu_walk(human48, seed=3)
+    x_forward = BACKWARDS_Z.T.numpy()  # the IMU's axes as the pelvis's: x forwards
+    R[:, 0] = R[:, 0] @ x_forward
+    static = read(write_opensense(tmp_path / "static.sto", t[:10], tuple(LEGS), R[:10]))
+    walk = read(write_opensense(tmp_path / "walk.sto", t[60:] - t[60], tuple(LEGS), R[60:]))  # moving from its start
+    knee = human48.joint_names.index("jRightKnee_roty")
+    error = {}
+    for axis in ("x", None):
+        mapped, link_map = map_recording(walk, "auto", human48, static=static, heading_axis=axis)
+        assert link_map.calibration["heading_axis"] == (axis or "-z")
+        trajectory, _ = track_recording(human48, mapped, mapped.links, TrackerSettings(), position_links=(), settle=0.2)
+        settled = slice(50, None)  # the walk is moving at its first frame: the first half second converges
+        estimate = trajectory.joint_positions[settled, 0, knee].numpy()
+        error[axis] = np.degrees(np.abs(estimate - truth[60:][settled, knee]).max())
+    assert error["x"] < 0.5 and error[None] > 10, error
+
+
+def test_the_opensim_model_of_the_comparison_has_human48s_kinematics(tmp_path):
+    """experiments/opensense_compare.py's OpenSim model: its bodies turn as torchik's Human48 links
+    at a random posture (the comparison measures tools, not models)."""
+    opensim = pytest.importorskip("opensim")
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+    import opensense_compare as compare
+
+    from torchik.method.models import human_urdf
+
+    urdf = human_urdf(48)
+    compare.build_opensim_model(urdf, tmp_path / "model.osim")
+    model = opensim.Model(str(tmp_path / "model.osim"))
+    assert model.getCoordinateSet().getSize() == 31  # free base, trunk to T8, hips, knees, ankles
+    assert compare.check_opensim_model(model, urdf, seed=1) < 1e-12
