@@ -1,7 +1,7 @@
 """torchik and OpenSense (OpenSim's IMU pipeline) on the same OpenSense-format recording of a
 simulated walk, both against the truth: joint-angle accuracy and frames per second, in one run.
 
-    PYTHONPATH=. python experiments/opensense_compare.py --out opensense_run/ [--seed 0] [--no-opensim]
+    PYTHONPATH=. python experiments/opensense_compare.py --out opensense_run/ [--seed 0] [--gain K] [--no-opensim]
 
 1. The recording. Human48 (the URDF torchik ships, through pinocchio: sensor_physics.Body) stands
    still in the N-pose for STILL seconds, eases into a walk over RAMP seconds and walks (sensor_physics'
@@ -156,14 +156,15 @@ def simulate(seed: int, out: Path, walking: float = WALK) -> dict:
 
 
 # ------------------------------------------------------------------------------ torchik
-def run_torchik(out: Path) -> dict:
-    """`torchik track` on the table (in this process), its wall time and the joint angles it wrote."""
+def run_torchik(out: Path, gain: float | None = None) -> dict:
+    """`torchik track` on the table (in this process, at `gain`, default torchik's), its wall time and
+    the joint angles it wrote."""
     from torchik.cli import main
     from torchik.io.opensim_out import read_motion
 
     args = ["track", "--input", str(out / "walk_orientations.sto"), "--model", "human48", "--quiet", "--force",
             "--out", str(out / "torchik.mot"), "--out", str(out / "torchik_orientationErrors.sto"),
-            "--report", str(out / "torchik_report.json")]
+            "--report", str(out / "torchik_report.json")] + (["--gain", f"{gain:g}"] if gain else [])
     started = time.perf_counter()
     code = main(args)
     wall = time.perf_counter() - started
@@ -359,6 +360,15 @@ def errors(estimate: dict, truth: dict) -> dict[str, float]:
     return out
 
 
+def orientation_errors(path: Path) -> dict[str, float]:
+    """rms (deg) of each IMU's column of an orientation-error table (rad), over the walk."""
+    from torchik.io.opensim_table import read_table
+
+    errors = read_table(path)
+    walking = errors.time >= STILL
+    return {imu: float(np.degrees(np.sqrt(np.nanmean(errors.column(imu, 1)[walking, 0] ** 2)))) for imu in errors.labels}
+
+
 def table(truth: dict, results: dict[str, dict]) -> str:
     """The markdown tables: rms error per joint and side against the truth, then each tool's speed."""
     frames, tools = len(truth["time"]), list(results)
@@ -367,6 +377,10 @@ def table(truth: dict, results: dict[str, dict]) -> str:
     for axis, label in COMPARED.items():
         cells = [f"{results[tool]['errors'][f'j{side}{axis}']:.2f}" for tool in tools for side in ("Right", "Left")]
         lines.append(f"| {label} (`{axis}`) | " + " | ".join(cells) + " |")
+    imus = list(results[tools[0]]["orientation_errors"])
+    lines += ["", "| orientation error, deg rms over the walk | " + " | ".join(imus) + " |", "|---|" + "---:|" * len(imus)]
+    for tool in tools:
+        lines.append(f"| {tool} | " + " | ".join(f"{results[tool]['orientation_errors'][imu]:.3f}" for imu in imus) + " |")
     lines += ["", "| tool | what the time covers | wall s | frames per second |", "|---|---|---:|---:|"]
     for tool, result in results.items():
         for what, seconds in result["timing"].items():
@@ -379,6 +393,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("opensense_run"))
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--walk", type=float, default=WALK, help=f"seconds of walking (default {WALK:g})")
+    parser.add_argument("--gain", type=float, help="torchik's gain K (1/s; default torchik track's)")
     parser.add_argument("--no-opensim", action="store_true", help="torchik only (OpenSim not installed)")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -388,16 +403,20 @@ def main() -> None:
     truth = simulate(args.seed, args.out, args.walk)
     print(f"simulated {len(truth['time'])} frames ({truth['simulate_s']:.0f} s): IMU filters "
           f"{truth['filter_error_deg']:.2f} deg rms from the truth; straps {np.round(truth['strap_deg'], 1).tolist()} deg")
-    results = {"torchik": run_torchik(args.out)}
+    results = {"torchik": run_torchik(args.out, args.gain)}
     if not args.no_opensim:
         results["OpenSense"] = run_opensense(args.out, _urdf_text())
         print(f"OpenSim model against torchik's Human48: {results['OpenSense']['model_agreement_rad']:.1e} rad")
     for result in results.values():
         result["errors"] = errors(result, truth)
+    results["torchik"]["orientation_errors"] = orientation_errors(args.out / "torchik_orientationErrors.sto")
+    if "OpenSense" in results:  # its IMU IK's own table, column by column beside torchik's
+        results["OpenSense"]["orientation_errors"] = orientation_errors(
+            args.out / "opensense" / "ik_walk_orientations_orientationErrors.sto")
     print(table(truth, results))
     keep = lambda r: {k: v for k, v in r.items() if k not in ("joint_positions", "time", "joint_names")}  # noqa: E731
-    summary = dict(seed=args.seed, frames=len(truth["time"]), rate_hz=RATE, still_s=STILL, ramp_s=RAMP, walk_s=args.walk,
-                   filter_error_deg=truth["filter_error_deg"], strap_deg=truth["strap_deg"],
+    summary = dict(seed=args.seed, gain=args.gain, frames=len(truth["time"]), rate_hz=RATE, still_s=STILL, ramp_s=RAMP,
+                   walk_s=args.walk, filter_error_deg=truth["filter_error_deg"], strap_deg=truth["strap_deg"],
                    speed_m_s=truth["speed_m_s"], stride_hz=truth["stride_hz"],
                    results={tool: keep(r) for tool, r in results.items()}, table=table(truth, results))
     (args.out / "results.json").write_text(json.dumps(summary, indent=2) + "\n")

@@ -152,7 +152,7 @@ def _world_rates(gyro: OpenSimTable, orientations: OpenSimTable, R: np.ndarray) 
     for i, label in enumerate(orientations.labels):
         if label in gyro.labels:
             w[:, i] = gyro.column(label, 3)
-    return (R @ np.nan_to_num(w)[..., None])[..., 0] + 0 * w  # NaN where the rate or the orientation is missing
+    return (R @ w[..., None])[..., 0]  # NaN where the rate or the orientation is missing
 
 
 def _rate(declared: str | None, table: OpenSimTable) -> float:

@@ -33,7 +33,7 @@ ANGULAR = ("base_roll", "base_pitch", "base_yaw")
 
 
 @dataclass(frozen=True)
-class Motion:
+class OpenSimMotion:
     """A motion file read back: time [T] s, the base's pose [T,6] (m and rad, BASE_COLUMNS' order),
     joint names [n] and joint positions [T,n] (rad), the header."""
 
@@ -103,7 +103,8 @@ class OrientationErrorWriter:
             raise ValueError("no part of the trajectory was written")
         time = np.concatenate(self._time)
         rate = 1.0 / float(np.median(np.diff(time))) if len(time) > 1 else 0.0
-        header = dict(DataRate=f"{rate:.6f}", DataType="double", version="3", OpenSimVersion="4.6", inDegrees="no")
+        header = dict(name="OrientationErrors", DataRate=f"{rate:.6f}", DataType="double", version="3",
+                      OpenSimVersion="4.6", inDegrees="no")
         return write_table(self.path, time, self.names, np.concatenate(self._rows), header)
 
     def __enter__(self) -> "OrientationErrorWriter":
@@ -122,7 +123,7 @@ def matrix_to_rpy(R: torch.Tensor) -> torch.Tensor:
     return torch.stack((roll, pitch, yaw), dim=-1)
 
 
-def read_motion(path: str | Path) -> Motion:
+def read_motion(path: str | Path) -> OpenSimMotion:
     """A motion file torchik wrote (or any OpenSim .mot of the same columns): joint angles in radians
     (converted from degrees when `inDegrees=yes`), the base pose when its columns are there (NaN
     otherwise). RecordingError naming the file when it is not such a table."""
@@ -140,4 +141,4 @@ def read_motion(path: str | Path) -> Motion:
                 base[:, k] = np.deg2rad(base[:, k])
     joints = tuple(label for label in table.labels if label not in BASE_COLUMNS)
     positions = values[:, [index[j] for j in joints]]
-    return Motion(table.time, base, joints, np.deg2rad(positions) if in_degrees else positions, table.header)
+    return OpenSimMotion(table.time, base, joints, np.deg2rad(positions) if in_degrees else positions, table.header)
