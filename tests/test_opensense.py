@@ -155,6 +155,8 @@ def test_track_reads_the_table_without_a_map_and_writes_opensim_outputs(tmp_path
     assert motion.header["inDegrees"] == "yes" and motion.joint_names == tuple(human48.joint_names)
     assert np.allclose(motion.joint_positions, estimate["joint_positions"], atol=1e-8)
     assert np.allclose(motion.base[:, :3], estimate["base_position"], atol=1e-8)
+    turned = so3.rpy_to_matrix(torch.from_numpy(motion.base[:, 3:])).numpy()
+    assert np.allclose(turned, estimate["base_rotation"], atol=1e-8)
     assert np.allclose(motion.base[:, 2], motion.base[0, 2]) and motion.base[0, 2] > 0.5  # held, standing
     legs = [human48.joint_names.index(j) for j in MOVES]
     assert np.degrees(np.abs(motion.joint_positions[:, legs] - truth[:, legs]).max()) < 0.5

@@ -55,3 +55,12 @@ def test_quaternion_to_matrix_of_a_quarter_turn_about_z():
     q = torch.tensor([math.cos(math.pi / 4), 0, 0, math.sin(math.pi / 4)], dtype=torch.float64)
     expected = torch.tensor([[0, -1, 0], [1, 0, 0], [0, 0, 1]], dtype=torch.float64)
     assert torch.allclose(so3.quaternion_to_matrix(q), expected, atol=1e-15)
+
+
+def test_matrix_to_rpy_inverts_rpy_to_matrix_also_at_gimbal_lock():
+    R = so3.random_rotation((200,), torch.Generator().manual_seed(0))
+    assert torch.allclose(so3.rpy_to_matrix(so3.matrix_to_rpy(R)), R, atol=1e-12)
+    rpy = torch.tensor([[0.3, math.pi / 2, -1.1], [0.3, -math.pi / 2, -1.1], [0.2, 0.4, 3.0]], dtype=torch.float64)
+    locked = so3.rpy_to_matrix(rpy)
+    assert torch.allclose(so3.rpy_to_matrix(so3.matrix_to_rpy(locked)), locked, atol=1e-12)
+    assert torch.allclose(so3.matrix_to_rpy(locked)[2], rpy[2], atol=1e-12)  # away from the lock: the same angles

@@ -55,7 +55,7 @@ class MotionWriter:
     def write(self, trajectory: Trajectory, targets: TargetSequence | None = None) -> None:
         """A part of the run; targets: unused (an output's signature)."""
         host = lambda t: t.detach().cpu().double()  # noqa: E731
-        rpy = matrix_to_rpy(host(trajectory.base_rotation[:, 0]))
+        rpy = so3.matrix_to_rpy(host(trajectory.base_rotation[:, 0]))
         rows = torch.cat((host(trajectory.base_position[:, 0]), torch.rad2deg(rpy),
                           torch.rad2deg(host(trajectory.joint_positions[:, 0]))), dim=-1)
         self._time.append(host(trajectory.time).numpy())
@@ -112,15 +112,6 @@ class OrientationErrorWriter:
 
     def __exit__(self, *exc) -> None:
         self._time, self._rows = [], []
-
-
-def matrix_to_rpy(R: torch.Tensor) -> torch.Tensor:
-    """Rotations [...,3,3] to roll, pitch, yaw [...,3] (rad) with R = Rz(yaw) Ry(pitch) Rx(roll): the
-    inverse of so3.rpy_to_matrix (pitch in [-pi/2, pi/2])."""
-    pitch = torch.asin((-R[..., 2, 0]).clamp(-1.0, 1.0))
-    roll = torch.atan2(R[..., 2, 1], R[..., 2, 2])
-    yaw = torch.atan2(R[..., 1, 0], R[..., 0, 0])
-    return torch.stack((roll, pitch, yaw), dim=-1)
 
 
 def read_motion(path: str | Path) -> OpenSimMotion:

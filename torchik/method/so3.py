@@ -173,6 +173,21 @@ def rpy_to_matrix(rpy: torch.Tensor) -> torch.Tensor:
     ).reshape(rpy.shape[:-1] + (3, 3))
 
 
+def matrix_to_rpy(R: torch.Tensor) -> torch.Tensor:
+    """The inverse of `rpy_to_matrix`: roll, pitch, yaw (rad) with R = Rz(yaw) Ry(pitch) Rx(roll), pitch
+    in [-pi/2, pi/2]. At pitch +-pi/2 (gimbal lock) roll and yaw turn about one axis: roll is 0 and
+    yaw carries their sum (or difference).
+
+    R: [..., 3, 3] -> [..., 3]
+    """
+    cos_pitch = torch.hypot(R[..., 0, 0], R[..., 1, 0])
+    pitch = torch.atan2(-R[..., 2, 0], cos_pitch)  # accurate near +-pi/2, where asin is not
+    locked = cos_pitch < 1e-12
+    roll = torch.where(locked, torch.zeros_like(pitch), torch.atan2(R[..., 2, 1], R[..., 2, 2]))
+    yaw = torch.where(locked, torch.atan2(-R[..., 0, 1], R[..., 1, 1]), torch.atan2(R[..., 1, 0], R[..., 0, 0]))
+    return torch.stack((roll, pitch, yaw), dim=-1)
+
+
 def random_rotation(shape: tuple[int, ...], generator: torch.Generator | None = None,
                     dtype: torch.dtype = torch.float64) -> torch.Tensor:
     """Rotations drawn uniformly on SO(3) (normalised Gaussian quaternions).
