@@ -61,6 +61,9 @@ EXAMPLES = """examples:
   torchik track --input walk.npz --model human66 --out estimate.npz
   torchik track --scenario running --duration 60 --gain 30 --backend batched --device cuda --quiet --rrd run.rrd
   torchik track --input walk.c3d --map plugin_gait_to_human --calibration static.c3d --model human48
+  torchik track --input walk_orientations.sto --model human48 --out estimate.mot --out errors.sto
+                                          an OpenSense IMU table: calibrated on its first frame, the base
+                                          held; OpenSim's joint angles and OpenSense's orientation errors
   torchik models                          list the models with their DoF, links and limits
   torchik info walk.mvnx                  segments, rate, duration and gaps of a recording
   torchik convert walk.mvnx walk.npz      convert to torchik's recording format
