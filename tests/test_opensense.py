@@ -176,7 +176,7 @@ def test_an_unknown_or_repeated_output_is_refused_before_any_work(tmp_path, cli)
     assert code == 2 and "--out" in err and ".mot" in err
     code, _, err = cli("track", "--scenario", "walking", "--duration", "0.2", "--out", tmp_path / "x.mot",
                        "--out", tmp_path / "x.mot")
-    assert code == 2 and "given twice" in err and not (tmp_path / "x.mot").exists()
+    assert code == 2 and "given twice as an output" in err and not (tmp_path / "x.mot").exists()
 
 
 def test_a_scenario_writes_the_opensim_outputs_under_its_link_names(tmp_path, cli):

@@ -57,8 +57,13 @@ def add_map_arguments(parser: argparse.ArgumentParser, target: str = "the model'
 def check_outputs(paths, force: bool, inputs=()) -> None:
     """Refuse, before any work, outputs that exist (without --force), that are not regular files (a
     FIFO, a device, a socket, a symlink: replacing them would destroy them), that are one of the
-    `inputs`, or whose folder does not exist or cannot be written. '-' (standard output) passes."""
+    `inputs` or named twice, or whose folder does not exist or cannot be written. '-' (standard
+    output) passes."""
     sources = {Path(p).resolve() for p in inputs if p}
+    named = [Path(p).resolve() for p in paths if p and p != "-"]
+    twice = next((path for path in named if named.count(path) > 1), None)
+    if twice is not None:
+        raise InputError(f"{twice} is given twice as an output; give each output once")
     for path in (Path(p) for p in paths if p and p != "-"):
         if not is_replaceable(path):
             raise InputError(f"{path} is {file_kind(path)}, which an output would replace; give a regular file's name"

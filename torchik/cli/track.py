@@ -17,6 +17,7 @@ from typing import Any
 
 from ..errors import InputError
 from ..io.base_position import BASE_POSITION_MODES
+from ..io.outputs import check_output_suffix
 from ..io.plausible import Plausibility
 from ..method.models import MODELS
 from ..method.qp import BACKENDS
@@ -52,7 +53,6 @@ from .common import (
 )
 
 MAX_FAILED = 0.01  # a restart now and then is recovery; one step in a hundred is a run not to trust
-OUT_SUFFIXES = (".npz", ".mot", ".sto")  # --out: torchik's trajectory, OpenSim's motion, OpenSense's errors
 
 EXAMPLES = """examples:
   torchik track --scenario walking --model human66 --rrd walk.rrd --report walk.json
@@ -159,12 +159,8 @@ def run(args: argparse.Namespace) -> int:
     args.out = args.out or []
     if "-" in args.out or args.rrd == "-":
         raise InputError("only --report may be - (standard output); --out and --rrd are files")
-    unknown = [path for path in args.out if Path(path).suffix.lower() not in OUT_SUFFIXES]
-    if unknown:
-        raise InputError(f"--out {unknown[0]}: the suffix says what to write: {', '.join(OUT_SUFFIXES)}")
-    twice = [path for path in dict.fromkeys(args.out) if args.out.count(path) > 1]
-    if twice:
-        raise InputError(f"--out {twice[0]} is given twice; give each output once")
+    for path in args.out:
+        check_output_suffix(path, "--out")
     check_outputs([args.report, *args.out, args.rrd], args.force, inputs=[args.input, args.calibration,
                                                                            args.sensor_calibration, args.urdf])
     if not args.input and args.scenario not in SCENARIOS:
@@ -229,21 +225,14 @@ def run(args: argparse.Namespace) -> int:
 def _outputs(args: argparse.Namespace, model, subject, links, position_links, recording, base_note: str | None):
     """The writers of --out and --rrd, by file: each part of the run goes to them as it is
     tracked; their files appear when committed (`_write_outputs`), and none if the run fails."""
-    from ..io import TrajectoryWriter
-    from ..io.opensim_out import MotionWriter, OrientationErrorWriter
+    from ..io.outputs import trajectory_writer
 
     with contextlib.ExitStack() as stack:
         writers: dict[str, Any] = {}
         segments = recording.meta.get("link_map", {}).get("segments", {})  # each link's source name (an IMU's)
+        notes = dict(base_position=base_note) if base_note else None
         for path in args.out:
-            suffix = Path(path).suffix.lower()
-            if suffix == ".npz":
-                writer: Any = TrajectoryWriter(path, model)
-            elif suffix == ".mot":
-                writer = MotionWriter(path, model, dict(base_position=base_note) if base_note else None)
-            else:
-                writer = OrientationErrorWriter(path, model, links, [segments.get(link, link) for link in links])
-            writers[path] = stack.enter_context(writer)
+            writers[path] = stack.enter_context(trajectory_writer(path, model, links, segments, notes))
         if args.rrd:
             from ..pipelines.rrd import RrdWriter
 
