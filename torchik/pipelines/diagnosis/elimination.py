@@ -116,8 +116,8 @@ def without(recording: Recording, urdf: str, kept: Sequence[Effect], drop: Effec
 def rescore(analysis: Analysis, b: int, effect: Effect, urdf: str, derived: torch.Tensor | None,
             threshold: float) -> tuple[str, Effect | None]:
     """Why `effect` no longer pays for its parameters on subject b of an analysis without it ("" when
-    it still does), and its fit there (its kind and target on the train half, scored on the test half;
-    None when the data no longer give one)."""
+    it still does: significant, and at or above its family's floor), and its fit there (its kind and
+    target on the train half, scored on the test half; None when the data no longer give one)."""
     train, test = halves(analysis.time)
     every = candidates(analysis, b, train, test, urdf, (effect.kind,), derived, effect.target)
     found = [c for c in every if c.fit is not None]
@@ -125,6 +125,9 @@ def rescore(analysis: Analysis, b: int, effect: Effect, urdf: str, derived: torc
         notes = "; ".join(c.notes for c in every if c.notes) or "no fit"
         return f"with the others in place it cannot be fitted ({notes})", None
     why = found[0].significant(threshold, noise_floor(analysis, b).axis_rms)
+    if not why:  # significant, but what the others leave it may be too small to matter (Effect.below_floor)
+        small = found[0].below_floor(float(torch.diff(analysis.time).median()))
+        why = f"is negligible: {small}" if small else ""
     return (f"with the others in place {why}" if why else ""), found[0]
 
 

@@ -47,6 +47,7 @@ from ...io.recording import Recording
 from ...method.kinematics import KinematicModel
 from . import (
     contribution,
+    crossing,
     elimination,
     frames,
     jointfit,
@@ -98,6 +99,7 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
     passing = preference.relevant(s, passing)
     passing = preference.biased_first(s, preference.simplest_first(s, passing))
     passing = preference.offset_first(s, preference.gyro_first(s, passing, threshold))
+    passing = preference.scaled_first(s, passing)
     chosen: list[tuple[Effect, Effect]] = []  # (the candidate, its refit)
     areas: list[tuple[set[str], set[str]]] = []
     waiting: list[tuple[set[str], set[str]]] = []  # the areas of candidates that wait for the next round
@@ -113,6 +115,8 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
             continue
         final = s.refit(c) or c
         final.fit = c.fit  # the score is the held-out one, and so are the judgements made beside it
+        if c is not final and c.notes:  # why a preference put it first (preference.py) holds for its refit
+            final.notes = "; ".join(filter(None, [c.notes, final.notes]))
         final.params.update({name: c.params[name] for name in c.judged if name in c.params})
         why = final.implausible() or posture.held_by_reference(final, s.model, s.current[0].poses[s.current[1]])
         if why:
@@ -337,6 +341,9 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
         complete = _check(added, links, gain, progress, max_samples, round_, say, refined)
         elimination.eliminate([v for v in found if id(v[0]) in complete], links, gain, threshold, progress,
                               max_samples, say, lambda s, key: errors(*s.current).overall[key], WORSE)
+        for s, chosen, *_ in added:  # an axis kept beside a misalignment may be that turn on the wrong side
+            for axis in [e for e in chosen if isinstance(e, joints.MissingDof) and any(e is k for k in s.effects)]:
+                crossing.other_side(s, axis, links, gain, threshold, progress, max_samples, say)
     if eliminate:  # the last check: each kept effect with every other in place, the last added too
         found = [v for s in subjects if len(s.effects) > 1 for v in elimination.variants(s, s.effects, every=True)]
         elimination.track([], found, links, gain, progress, max_samples)

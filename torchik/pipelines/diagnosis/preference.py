@@ -1,8 +1,9 @@
 """Which of the significant candidates a round of the loop takes first, where the data score them alike
 and the physics does not: the relevant ones only (above their family's floor), the simplest of tied
 rivals, the drifting sensor whose gyro shows a bias, a drift its own gyro shows before a model effect,
-a sensor's turned frame before a missing axis whose angle is mostly an offset. Each takes the
-candidates best first and returns them reordered, noting on the one it moves why.
+a sensor's turned frame before a missing axis whose angle is mostly an offset, a gyro's scale error before
+the bias it makes of a steady turn. Each takes the candidates best first and returns them reordered,
+noting on the one it moves why.
 """
 
 from __future__ import annotations
@@ -118,6 +119,7 @@ def gyro_first(s: Subject, passing: list[Effect], threshold: float) -> list[Effe
 
 def offset_first(s: Subject, passing: list[Effect]) -> list[Effect]:
     """`passing` with a misalignment of the links on either side of a missing axis put before the axis
+    (and the effects of those sensors that score above it, a drift, with it, in their order)
     where the axis' angle is mostly an offset (its mean beyond its rms about it): a constant angle is a
     sensor's frame turned on its segment, which one to three parameters explain, and a joint's angle
     comes and goes; fitted first, an axis takes the offset with the motion, and the frame's turn is
@@ -126,13 +128,57 @@ def offset_first(s: Subject, passing: list[Effect]) -> list[Effect]:
     for m in passing:
         if not isinstance(m, joints.MissingDof) or abs(m.params.get("angle_mean", 0.0)) <= m.params.get("angle_rms", 0.0):
             continue
-        frame = next((c for c in out[out.index(m):] if c.kind == "misalignment"
-                      and c.target in (m.params["child"], m.params["parent"])), None)
-        if frame is not None:
-            out.remove(frame)
-            out.insert(out.index(m), frame)
-            why = (f"preferred to the missing axis at {m.target}, whose angle is mostly an offset "
-                   f"({math.degrees(m.params['angle_mean']):.1f} deg, about which it moves by "
-                   f"{math.degrees(m.angle_rms()):.1f})")
-            frame.notes = "; ".join(filter(None, [frame.notes, why]))
+        sides = (m.params["child"], m.params["parent"])
+        # the sensors' own effects on either side, in their order: a drift of one of them (its heading's
+        # mean is an offset too) that scores above its misalignment stays ahead of it
+        sensors = [c for c in out[out.index(m):] if not c.model_effect and c.target in sides]
+        frame = next((c for c in sensors if c.kind == "misalignment"), None)
+        if frame is None:
+            continue
+        why = (f"preferred to the missing axis at {m.target}, whose angle is mostly an offset "
+               f"({math.degrees(m.params['angle_mean']):.1f} deg, about which it moves by "
+               f"{math.degrees(m.angle_rms()):.1f})")
+        for c in sensors[:sensors.index(frame) + 1]:
+            out.remove(c)
+            out.insert(out.index(m), c)
+            c.notes = "; ".join(filter(None, [c.notes, why]))
+    return out
+
+
+AGREE = 0.3  # a bias within this share of its size of what a scale error makes of the sensor's mean rate
+
+
+def scaled_first(s: Subject, passing: list[Effect]) -> list[Effect]:
+    """`passing` with a gyro's scale error put before a bias of that gyro which the scale error makes:
+    a scale error kappa reads kappa w_bar more than the mean rate w_bar of a segment that turns steadily
+    (a turning walk), a constant in the sensor frame as a bias is. Fitted on its integral, the bias
+    shows that constant alone and scores well above the scale error seen in the swings; taken first,
+    it is kept beside the scale error, which then explains the swings. Moved where the bias is, within
+    AGREE of its size, some kappa_b times the mean rate (sensor frame), with kappa_b within a factor of
+    two of the scale candidate's own kappa: two readings of one scale error, one parameter for four."""
+    out = list(passing)
+    analysis, b = s.current
+    for c in passing:
+        if c.kind != "gyro_bias":
+            continue
+        scale = next((k for k in out[out.index(c):] if k.kind == "gyro_scale" and k.target == c.target), None)
+        if scale is None:
+            continue
+        i = analysis.links.index(c.target)
+        ok = analysis.valid[:, b, i]
+        mean_rate = (analysis.R_m[ok, b, i].transpose(-1, -2) @ analysis.w_m[ok, b, i, :, None])[..., 0].mean(0)
+        bias = torch.as_tensor(c.params["bias"], dtype=mean_rate.dtype)
+        power = float(mean_rate.square().sum())
+        if power == 0.0:
+            continue
+        kappa_b = float(bias @ mean_rate) / power
+        kappa = scale.params["scale_error"]
+        if kappa == 0.0 or float((bias - kappa_b * mean_rate).norm()) > AGREE * float(bias.norm()) \
+                or not 0.5 <= kappa_b / kappa <= 2.0:
+            continue
+        out.remove(scale)
+        out.insert(out.index(c), scale)
+        scale.notes = "; ".join(filter(None, [scale.notes, (
+            f"preferred to the gyro bias of this sensor (score {c.score:.0f}): that bias is what a scale error of "
+            f"{100 * kappa_b:+.1f} % makes of the sensor's mean rate ({math.degrees(float(mean_rate.norm())):.1f} deg/s)")]))
     return out
