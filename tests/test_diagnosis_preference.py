@@ -1,5 +1,8 @@
 """The loop's preferences where the data score two causes alike and the physics does not (preference.py).
 
+A missing axis whose angle is mostly an offset comes after the effects of the sensors on either side
+of it, those in their own order (a drift of a sensor scoring above its misalignment stays ahead).
+
 A gyro reading its rates with a scale error, on a pelvis that turns steadily through a curved walk,
 simulated by experiments/sensor_physics.py (pinocchio's kinematics; the rate stream converted with the
 wrong sensitivity while the filter integrates the calibrated gyro). The scale error reads kappa times the
@@ -19,9 +22,13 @@ from pathlib import Path
 import pytest
 
 from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
+from torchik.pipelines.diagnosis import preference
+from torchik.pipelines.diagnosis.drift import HeadingDrift
+from torchik.pipelines.diagnosis.effect import Score
+from torchik.pipelines.diagnosis.joints import MissingDof
 from torchik.pipelines.diagnosis.loop import diagnose
+from torchik.pipelines.diagnosis.placement import Misalignment
 
-pytest.importorskip("pinocchio")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
 import sensor_physics  # noqa: E402
 
@@ -30,9 +37,30 @@ SEED = 7117  # gyro_scale on the Pelvis, +4.9 %, in a walk turning at 6.8 deg/s 
 
 
 def test_a_scale_error_on_a_steadily_turning_segment_is_not_named_a_bias(one_thread):
+    pytest.importorskip("pinocchio")
     rec, injected, info = sensor_physics.generate(SEED, "gyro_scale", 1, LINKS, duration=8.0, rate=100.0, reference=None)
     assert injected[0].targets == ["Pelvis"] and abs(info["motion"]["turn_deg_s"]) > 5.0
     d, = diagnose(load_model("human48"), human_urdf(48), [rec], LINKS, max_effects=4)
     on_pelvis = {e.kind: e for e in d.effects if e.target == "Pelvis"}
     assert "gyro_bias" not in on_pelvis, [e.summary() for e in d.effects]
     assert abs(100 * on_pelvis["gyro_scale"].params["scale_error"] - float(injected[0].sizes[0])) < 0.5
+
+
+def _scored(effect, score: float):
+    effect.fit = Score(score, 0.5, 1.0, 1.0, 100)
+    return effect
+
+
+def test_a_mostly_offset_axis_comes_after_its_sides_sensors_in_their_order():
+    """An axis between L3 and T12 whose angle is mostly an offset, scoring best; L3's heading drift
+    scoring above L3's misalignment (a drift's mean is an offset too): both come before the axis, the
+    drift first; another link's candidate keeps its place."""
+    axis = _scored(MissingDof("missing_dof", "jL1T12", dict(parent="L3", child="T12", angle_mean=0.1,
+                                                                angle_rms=0.02)), 7000.0)
+    elsewhere = _scored(HeadingDrift("heading_drift", "RightToe", dict(rate=0.02)), 6000.0)
+    drift = _scored(HeadingDrift("heading_drift", "L3", dict(rate=0.03)), 263.0)
+    turned = _scored(Misalignment("misalignment", "L3", dict(rotation_vector=[0.0, 0.0, 0.1])), 144.0)
+    below = _scored(Misalignment("misalignment", "T12", dict(rotation_vector=[0.0, 0.0, 0.02])), 22.0)
+    out = preference.offset_first(None, [axis, elsewhere, drift, turned, below])
+    assert out == [drift, turned, axis, elsewhere, below]
+    assert "mostly an offset" in drift.notes and "mostly an offset" in turned.notes

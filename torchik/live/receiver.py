@@ -131,7 +131,8 @@ class ReceiverProcess:
                     self._take()
             except (BrokenPipeError, EOFError, OSError):
                 pass
-        self.process.join(timeout=2.0)
+        # its interpreter's exit (torch's teardown) takes seconds on a loaded machine: terminated only if stuck
+        self.process.join(timeout=10.0)
         if self.process.is_alive():
             self.process.terminate()
             self.process.join()
