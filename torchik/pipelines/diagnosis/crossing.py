@@ -18,12 +18,13 @@ still is, it was a joint's motion and stays.
 
 from __future__ import annotations
 
+import math
 from typing import Callable, Sequence
 
 import torch
 
 from ...method.kinematics import KinematicModel
-from . import elimination, posture
+from . import elimination
 from .analysis import noise_floor
 from .effect import Effect
 from .joints import MissingDof
@@ -61,10 +62,7 @@ def _fitted(v: Subject, kind: str, target: str, threshold: float, links) -> tupl
            or elimination.hanger_on(c, v.effects, v.model, v.urdf, links, noise.axis_rms) or c.below_floor(dt))
     if why:
         return None, why
-    final = v.refit(c) or c
-    final.fit = c.fit
-    final.params.update({name: c.params[name] for name in c.judged if name in c.params})
-    why = final.implausible() or posture.held_by_reference(final, v.model, v.current[0].poses[v.current[1]])
+    final, why = v.adopted(c)
     return (None, f"implausible: {why}") if why else (final, "")
 
 
@@ -108,7 +106,7 @@ def other_side(s: Subject, axis: MissingDof, links, gain: float, threshold: floa
         s.rejected.append(e)
     moved.notes = "; ".join(filter(None, [moved.notes, (
         f"in place of a misalignment of {first.target} and a missing axis at {axis.target} (moving over "
-        f"{', '.join(f'{x * 57.29578:.1f}' for x in axis.params['angle_range'])} deg): the joint cannot turn the two "
+        f"{', '.join(f'{math.degrees(x):.1f}' for x in axis.params['angle_range'])} deg): the joint cannot turn the two "
         f"segments against each other about that axis, and a turn on the wrong side of it asks for one moving "
         f"with the joint")]))
     s.recording, s.urdf, s.model, s.analysis, s.steps = v.recording, v.urdf, v.model, v.analysis, v.steps

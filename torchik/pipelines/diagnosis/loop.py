@@ -53,7 +53,6 @@ from . import (
     jointfit,
     joints,
     placement,
-    posture,
     preference,
     refinement,
     shared_drift,
@@ -113,12 +112,7 @@ def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> li
         if any(area[0] & near or reach & area[1] for reach, near in areas + waiting):
             waiting.append(area)
             continue
-        final = s.refit(c) or c
-        final.fit = c.fit  # the score is the held-out one, and so are the judgements made beside it
-        if c is not final and c.notes:  # why a preference put it first (preference.py) holds for its refit
-            final.notes = "; ".join(filter(None, [c.notes, final.notes]))
-        final.params.update({name: c.params[name] for name in c.judged if name in c.params})
-        why = final.implausible() or posture.held_by_reference(final, s.model, s.current[0].poses[s.current[1]])
+        final, why = s.adopted(c)
         if why:
             final.notes = "; ".join(filter(None, [final.notes, f"implausible: {why}"]))
             c.notes = final.notes  # the report's best candidate left is c: it says why it was not kept

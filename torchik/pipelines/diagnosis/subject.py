@@ -13,6 +13,7 @@ from .analysis import Analysis, analyse
 from .candidates import candidates
 from .chunks import Chunking
 from .effect import Effect, halves
+from .posture import held_by_reference
 
 
 @dataclass
@@ -73,6 +74,18 @@ class Subject:
         found = [c for c in self.candidates((effect.kind,), train | test, train | test, effect.target, effect)
                  if c.fit is not None]
         return found[0] if found else None
+
+    def adopted(self, c: Effect) -> tuple[Effect, str]:
+        """Candidate c as the loop adds it: refitted on all the current data, keeping c's held-out score,
+        the judgements made beside it and why a preference put it first; and why it is implausible
+        ("" when it is not: its values, or a limit the reference pose holds it at)."""
+        final = self.refit(c) or c
+        final.fit = c.fit
+        if final is not c and c.notes:
+            final.notes = "; ".join(filter(None, [c.notes, final.notes]))
+        final.params.update({name: c.params[name] for name in c.judged if name in c.params})
+        why = final.implausible() or held_by_reference(final, self.model, self.current[0].poses[self.current[1]])
+        return final, why
 
     def add(self, effect: Effect) -> None:
         if effect.model_effect:
