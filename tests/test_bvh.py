@@ -9,7 +9,7 @@ import itertools
 import numpy as np
 import pytest
 import torch
-from conftest import shared_file
+from conftest import shared_file, skip_without_shared
 from written import walk
 
 from torchik.io import RecordingError
@@ -160,6 +160,7 @@ def test_a_cut_written_walk_is_refused_with_the_frames_it_announced(humanik_walk
         read_bvh(tmp_path / "cut.bvh")
 
 
+@skip_without_shared
 @pytest.mark.parametrize("name", ["bandai_walk_normal_001.bvh", "bandai_run_normal_001.bvh", "cmu_131_01.bvh"])
 def test_the_real_bvh_files_convert(name):
     rec = read_bvh(shared_file(f"bvh/{name}"))
