@@ -64,10 +64,20 @@ def valid(**changes):
     (dict(angular_velocity=np.zeros((4, 3, 3))), r"angular_velocity has shape \[4, 3, 3\], expected \[4, 2, 3\]"),
     (dict(time=np.arange(4, dtype=np.float32)), "time must be a float64"),
     (dict(links=("Pelvis", "Pelvis")), "duplicate link names"),
+    (dict(external_wrench=np.zeros((4, 2, 3))), r"external_wrench must be float64 \[4,2,6\], got float64 \[4, 2, 3\]"),
+    (dict(external_wrench=np.full((4, 2, 6), np.inf)), "external_wrench holds Inf"),
 ])
 def test_invalid_recordings_are_refused_naming_the_problem(change, message):
     with pytest.raises(RecordingError, match=message):
         Recording(**valid(**change))
+
+
+def test_an_external_wrench_round_trips_with_its_unknown_frames(tmp_path):
+    wrench = np.random.default_rng(1).normal(size=(4, 2, 6))
+    wrench[2, 1] = np.nan  # measured but not given to one segment
+    back = load_recording(save_recording(Recording(**valid(external_wrench=wrench)), tmp_path / "w.npz"))
+    assert np.array_equal(back.external_wrench, wrench, equal_nan=True)
+    assert load_recording(save_recording(Recording(**valid()), tmp_path / "none.npz")).external_wrench is None
 
 
 def test_a_reflection_is_not_a_rotation():

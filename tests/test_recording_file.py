@@ -13,7 +13,8 @@ from torchik.io import Recording, RecordingError, load_recording, save_recording
 from torchik.io.recording_file import RecordingFile
 from torchik.method import so3
 
-ARRAYS = ("orientation", "angular_velocity", "base_position", "base_linear_velocity", "joint_positions", "position")
+ARRAYS = ("orientation", "angular_velocity", "base_position", "base_linear_velocity", "joint_positions", "position",
+          "external_wrench")
 
 
 def recording(T: int, n: int = 4, seed: int = 0) -> Recording:
@@ -23,7 +24,8 @@ def recording(T: int, n: int = 4, seed: int = 0) -> Recording:
     return Recording(time=np.arange(T) / 100.0, links=tuple(f"l{i}" for i in range(n)), orientation=R,
                      angular_velocity=g.normal(size=(T, n, 3)), base_link="l0", base_position=g.normal(size=(T, 3)),
                      base_linear_velocity=g.normal(size=(T, 3)), joint_names=("a", "b"),
-                     joint_positions=g.normal(size=(T, 2)), position=g.normal(size=(T, n, 3)), meta={"k": 1})
+                     joint_positions=g.normal(size=(T, 2)), position=g.normal(size=(T, n, 3)),
+                     external_wrench=g.normal(size=(T, n, 6)), meta={"k": 1})
 
 
 def write(rec: Recording, path, compressed: bool = False):
@@ -60,7 +62,7 @@ def test_load_recording_is_the_reader_in_one_chunk(tmp_path):
 def test_reading_holds_one_chunk_not_the_file(tmp_path):
     rec = recording(4000, n=23)
     path = write(rec, tmp_path / "r.npz")
-    per_frame = sum(getattr(rec, name)[0].nbytes for name in ARRAYS)  # about 2.8 kB a frame
+    per_frame = sum(getattr(rec, name)[0].nbytes for name in ARRAYS)  # about 3.9 kB a frame
     reader = RecordingFile(path)
     tracemalloc.start()
     try:
@@ -70,7 +72,7 @@ def test_reading_holds_one_chunk_not_the_file(tmp_path):
     finally:
         tracemalloc.stop()
     assert frames == 4000
-    assert peak < 40 * 16 * per_frame < 4000 * per_frame / 5  # a few chunks' worth; the file holds 11 MB
+    assert peak < 40 * 16 * per_frame < 4000 * per_frame / 5  # a few chunks' worth; the file holds 16 MB
 
 
 def test_a_bad_rotation_is_named_by_its_frame_in_the_file_whatever_the_chunk(tmp_path):

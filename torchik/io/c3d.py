@@ -11,6 +11,11 @@ A point whose residual is negative (the C3D convention for "not measured") or wh
 are all zero (how some exporters mark occlusions) is missing: the segment's rotation is NaN for
 that frame, never interpolated. Angular and linear velocities are central differences; they are
 NaN next to a gap.
+
+Where the file has force plates (FORCE_PLATFORM), the reader adds each foot's `external_wrench`:
+the plates' ground reactions (force_plates.py) at the point frames, given to the foot nearest
+each contact (foot_contacts.py, the heel and toe markers LHEE-LTOE, RHEE-RTOE or, without them,
+the ankle joint centre and the foot's origin), with the plates and contacts in meta["force_plates"].
 """
 
 from __future__ import annotations
@@ -20,13 +25,18 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..errors import optional
+from ..errors import InputError, optional
 from ..method import so3
+from . import analog
+from .foot_contacts import assign_contacts, link_wrenches
+from .force_plates import CONTACT_THRESHOLD, GroundReactions, ground_reactions
 from .recording import Recording, RecordingError, angular_velocity_from_orientations, readable_file
 
 PLUG_IN_GAIT = ("PEL", "TRX", "HED", "LCL", "LHU", "LRA", "LHN", "RCL", "RHU", "RRA", "RHN",
                 "LFE", "LTI", "LFO", "LTO", "RFE", "RTI", "RFO", "RTO")
 UNIT_SCALE = {"mm": 1e-3, "cm": 1e-2, "m": 1.0}
+# each foot segment's ends for the plates' contacts: heel and toe markers, else the ankle joint centre and the foot's origin
+FOOT_POINTS = {"LFO": (("LHEE", "LTOE"), ("LTIO", "LFOO")), "RFO": (("RHEE", "RTOE"), ("RTIO", "RFOO"))}
 
 
 def _labels(points_parameters: dict) -> list[str]:
@@ -97,15 +107,63 @@ def _declared_frames(path: Path, parameters: dict) -> int | None:
     return last - first + 1 if last >= first else None
 
 
-def read_c3d(path: str | Path, base_link: str = "PEL", units: str | None = None) -> Recording:
-    """Read the Plug-in Gait segments of a C3D file. units: 'mm', 'cm' or 'm' when the file's POINT:UNITS
-    is missing or wrong. RecordingError names the file and the problem."""
-    path = readable_file(path)
+def _open(path: Path):
+    """The file read by ezc3d (analogs scaled by it), or RecordingError."""
     ezc3d = optional("ezc3d", "io", "reading C3D files")
     try:
-        c3d = ezc3d.c3d(str(path), extract_forceplat_data=False)
+        return ezc3d.c3d(str(path), extract_forceplat_data=False)
     except Exception as exc:  # ezc3d raises plain exceptions for truncated or foreign files
         raise RecordingError(f"{path}: not a readable C3D file ({type(exc).__name__}: {exc})") from None
+
+
+def _point_unit(path: Path, parameters: dict, units: str | None) -> str:
+    """`units`, else POINT:UNITS; RecordingError when neither is one of UNIT_SCALE."""
+    declared = list(parameters.get("UNITS", {}).get("value", []))
+    unit = units or (declared[0].strip().lower() if declared else None)
+    if unit is None:
+        raise RecordingError(f"{path}: the file declares no POINT:UNITS; give units= one of {list(UNIT_SCALE)}")
+    if unit not in UNIT_SCALE:
+        raise RecordingError(f"{path}: unknown units {unit!r}; give units= one of {list(UNIT_SCALE)}")
+    return unit
+
+
+def read_ground_reactions(path: str | Path, units: str | None = None, threshold: float = CONTACT_THRESHOLD,
+                          method: analog.Method = "butterworth", cutoff: float | None = None) -> GroundReactions:
+    """The ground reactions of a C3D file's force plates at its point frames (force_plates.py;
+    `method` and `cutoff`: analog.to_frames's). RecordingError names the file and the problem."""
+    path = readable_file(path)
+    c3d = _open(path)
+    unit = _point_unit(path, c3d["parameters"]["POINT"], units)
+    try:
+        return ground_reactions(c3d, UNIT_SCALE[unit], threshold, method, cutoff)
+    except InputError as exc:
+        raise RecordingError(f"{path}: {exc}") from None
+
+
+def _external_wrench(reactions: GroundReactions, links: tuple[str, ...], xyz: np.ndarray, valid: np.ndarray,
+                     index: dict) -> tuple[np.ndarray, dict]:
+    """Each link's plate wrench [T,n,6] (foot_contacts.py) and what meta says of the plates."""
+    seen = lambda name: np.where(valid[:, index[name], None], xyz[:, index[name]], np.nan)  # noqa: E731
+    feet = {}
+    for link, choices in FOOT_POINTS.items():
+        ends = next((pair for pair in choices if all(name in index for name in pair)), None)
+        if ends is not None:
+            feet[link] = (seen(ends[0]), seen(ends[1]))
+    contacts = assign_contacts(reactions, feet)
+    lost = sorted({c.link for c in contacts if c.link is not None and c.link not in links})
+    meta = dict(reactions.to_json(), contacts=[c.to_json() for c in contacts], feet=list(feet),
+                wrench="force N, moment N m about the world origin, world frame, on the body")
+    if lost:
+        meta["links_absent"] = lost
+    return link_wrenches(reactions, contacts, links), meta
+
+
+def read_c3d(path: str | Path, base_link: str = "PEL", units: str | None = None, forces: bool = True) -> Recording:
+    """Read the Plug-in Gait segments of a C3D file. units: 'mm', 'cm' or 'm' when the file's POINT:UNITS
+    is missing or wrong; forces: the force plates' wrenches on the feet (`external_wrench`), where the
+    file has plates. RecordingError names the file and the problem."""
+    path = readable_file(path)
+    c3d = _open(path)
     parameters = c3d["parameters"]["POINT"]
     labels = _labels(parameters)
     points = c3d["data"]["points"]  # [4, P, T]
@@ -115,12 +173,7 @@ def read_c3d(path: str | Path, base_link: str = "PEL", units: str | None = None)
                              f"{points.shape[2]}")
     if points.shape[1] != len(labels):
         raise RecordingError(f"{path}: {points.shape[1]} points but {len(labels)} labels")
-    declared = list(parameters.get("UNITS", {}).get("value", []))
-    unit = units or (declared[0].strip().lower() if declared else None)
-    if unit is None:
-        raise RecordingError(f"{path}: the file declares no POINT:UNITS; give units= one of {list(UNIT_SCALE)}")
-    if unit not in UNIT_SCALE:
-        raise RecordingError(f"{path}: unknown units {unit!r}; give units= one of {list(UNIT_SCALE)}")
+    unit = _point_unit(path, parameters, units)
     rate = float(np.asarray(parameters["RATE"]["value"]).ravel()[0])
     index = {label: i for i, label in enumerate(labels)}
     segments = [s for s in PLUG_IN_GAIT if all(s + axis in index for axis in "OALP")]
@@ -169,6 +222,16 @@ def read_c3d(path: str | Path, base_link: str = "PEL", units: str | None = None)
         point = PROXIMAL_JOINT.get(segment)
         if point in index:
             position[:, i] = np.where(valid[:, index[point], None], xyz[:, index[point]], np.nan)
+    wrench = None
+    if forces:
+        try:
+            reactions = ground_reactions(c3d, UNIT_SCALE[unit])
+        except InputError as exc:
+            raise RecordingError(f"{path}: {exc} (forces=False reads the motion without the plates)") from None
+        if reactions.plates:
+            wrench, meta["force_plates"] = _external_wrench(reactions, tuple(segments), xyz, valid, index)
+        elif reactions.skipped:
+            meta["force_plates"] = reactions.to_json()
     return Recording(time=time, links=tuple(segments), orientation=R, position=position,
                      angular_velocity=angular_velocity_from_orientations(R, time), base_link=base_link,
-                     base_position=base_position, base_linear_velocity=velocity, meta=meta)
+                     base_position=base_position, base_linear_velocity=velocity, meta=meta, external_wrench=wrench)

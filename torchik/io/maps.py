@@ -317,7 +317,17 @@ def apply_map(recording: Recording, link_map: LinkMap, model: KinematicModel | N
     return Recording(time=recording.time, links=link_map.links, orientation=R,
                      angular_velocity=recording.angular_velocity[:, ids], base_link=link_map.base_link,
                      base_position=recording.base_position, base_linear_velocity=recording.base_linear_velocity,
-                     meta=meta, position=None if recording.position is None else recording.position[:, ids])
+                     meta=meta, position=None if recording.position is None else recording.position[:, ids],
+                     external_wrench=_mapped_wrench(recording, ids))
+
+
+def _mapped_wrench(recording: Recording, ids: list[int]) -> np.ndarray | None:
+    """The segments' external wrenches [T,n,6] on the links mapped from them: on the first link a
+    segment gives, once (its moment is about the world origin: a link's frame does not change it)."""
+    if recording.external_wrench is None:
+        return None
+    first = [ids.index(i) == k for k, i in enumerate(ids)]
+    return np.where(np.array(first)[:, None], recording.external_wrench[:, ids], 0.0)
 
 
 def map_recording(recording: Recording, map_name: str | Path, model: KinematicModel, static: Recording | None = None,

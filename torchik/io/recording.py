@@ -14,12 +14,20 @@ One `.npz` file (NumPy, no pickles):
 | `joint_names` | str [dof] | optional, with `joint_positions` |
 | `joint_positions` | float64 [T,dof] | optional ground truth (synthetic data) |
 | `position` | float64 [T,n,3] | optional: each segment's origin (its proximal joint), m, world; NaN where missing |
+| `external_wrench` | float64 [T,n,6] | optional: measured external force (N), moment about the world origin (N m) |
 | `meta` | str | JSON: source file, subject, units, frame rate, calibration frames, `clock`, ... |
 
 `meta["clock"]`: `"shared"` where one clock samples every segment (optical markers: the C3D and BVH
 readers write it), `"per_sensor"` where each sensor streams on its own; absent where unknown.
 `meta["angular_velocity"]`: `"derived"` where a reader computed it from the orientations (C3D, BVH);
 the diagnosis also tells a derivative from a gyro on the data themselves.
+
+`external_wrench` (world frame; zero where none is measured, NaN where one is measured but cannot be
+given to one segment) is what force plates measure (the C3D reader, force_plates.py and foot_contacts.py):
+the force the ground exerts on the body, summed over the plates whose contact is on the segment.
+Its moment is about the world origin, so wrenches add and a map may move them to another segment;
+the centre of pressure p on a floor of normal n follows from it (n x (M - c x F) / (n . F) + c for
+a point c of the floor).
 
 `save_recording` writes it; `load_recording` (recording_file.py) reads it whole, `RecordingFile` a
 chunk of frames at a time.
@@ -63,6 +71,7 @@ class Recording:
     joint_positions: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
     position: np.ndarray | None = None  # [T,n,3] each segment's origin, m, world (position targets off the base)
+    external_wrench: np.ndarray | None = None  # [T,n,6] force N, moment N m about the world origin, world
     first_frame: int = 0  # of a chunk read from a longer recording: where it starts (what messages count from)
 
     def __post_init__(self):
@@ -99,7 +108,7 @@ class Recording:
                                    base_position=self.base_position[start:stop],
                                    base_linear_velocity=self.base_linear_velocity[start:stop],
                                    joint_positions=cut(self.joint_positions), position=cut(self.position),
-                                   first_frame=self.first_frame + start)
+                                   external_wrench=cut(self.external_wrench), first_frame=self.first_frame + start)
 
     def gaps(self) -> dict[str, int]:
         """Frames with missing (NaN) orientation, per segment that has any."""
@@ -112,6 +121,8 @@ def validate(rec: Recording, where: str = "recording") -> None:
     check_layout(rec.time, rec.links, rec.base_link, per_frame_arrays(rec), rec.joint_names, rec.meta, where,
                  rec.first_frame)
     check_frames(rec.orientation, rec.angular_velocity, rec.links, where, rec.first_frame)
+    if rec.external_wrench is not None and np.isinf(rec.external_wrench).any():
+        raise RecordingError(f"{where}: external_wrench holds Inf (use NaN to mark an unknown wrench)")
 
 
 def per_frame_arrays(rec: Recording) -> dict[str, Any]:
@@ -122,6 +133,8 @@ def per_frame_arrays(rec: Recording) -> dict[str, Any]:
         arrays["joint_positions"] = rec.joint_positions
     if rec.position is not None:
         arrays["position"] = rec.position
+    if rec.external_wrench is not None:
+        arrays["external_wrench"] = rec.external_wrench
     return arrays
 
 
@@ -165,6 +178,9 @@ def check_layout(time: Any, links: tuple[str, ...], base_link: str, arrays: dict
     position = arrays.get("position")
     if position is not None and (position.dtype != np.float64 or position.shape != (T, n, 3)):
         fail(f"position must be float64 [{T},{n},3], got {position.dtype} {list(position.shape)}")
+    wrench = arrays.get("external_wrench")
+    if wrench is not None and (wrench.dtype != np.float64 or wrench.shape != (T, n, 6)):
+        fail(f"external_wrench must be float64 [{T},{n},6], got {wrench.dtype} {list(wrench.shape)}")
     try:
         json.dumps(meta)
     except TypeError as exc:
@@ -203,6 +219,8 @@ def save_recording(rec: Recording, path: str | Path) -> Path:
         arrays.update(joint_names=np.array(rec.joint_names, dtype=str), joint_positions=rec.joint_positions)
     if rec.position is not None:
         arrays.update(position=rec.position)
+    if rec.external_wrench is not None:
+        arrays.update(external_wrench=rec.external_wrench)
     with open(path, "wb") as f:  # a file object: np.savez would append .npz to other suffixes
         np.savez(f, **arrays)
     return path

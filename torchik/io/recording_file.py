@@ -22,7 +22,8 @@ import numpy as np
 
 from .recording import REQUIRED, Recording, RecordingError, check_layout, readable_file
 
-PER_FRAME = ("orientation", "angular_velocity", "base_position", "base_linear_velocity", "joint_positions", "position")
+PER_FRAME = ("orientation", "angular_velocity", "base_position", "base_linear_velocity", "joint_positions", "position",
+             "external_wrench")
 BLOCK = 16 << 20  # bytes per read from a member: a chunk's copy is made a block at a time
 
 
