@@ -47,7 +47,7 @@ from typing import NamedTuple, Sequence
 import torch
 
 from ...errors import InputError
-from ..kinematics.compose import frame_poses, link_poses, matmul_soa, matvec_soa, world_axes
+from ..kinematics.compose import SMALL_BATCH, frame_poses, link_poses, matmul_soa, matvec_soa, world_axes
 from ..kinematics.model import KinematicModel
 from ..kinematics.tensors import TreeTensors
 
@@ -144,9 +144,13 @@ def _below(t: TreeTensors, X: torch.Tensor) -> torch.Tensor:
 
 def cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Cross products along dimension -2, batch last: a, b [...,3,B] (broadcast) -> [...,3,B]."""
-    a0, a1, a2 = a.unbind(-2)
-    b0, b1, b2 = b.unbind(-2)
-    return torch.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), -2)
+    if a.shape[-1] <= SMALL_BATCH:
+        return torch.linalg.cross(a, b, dim=-2)
+    # torch's cross along a middle dimension is slow for large batches: the three components
+    out = torch.empty(torch.broadcast_shapes(a.shape, b.shape), dtype=a.dtype, device=a.device)
+    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+        torch.mul(a[..., j, :], b[..., k, :], out=out[..., i, :]).addcmul_(a[..., k, :], b[..., j, :], value=-1.0)
+    return out
 
 
 def motion_cross(V: torch.Tensor, M: torch.Tensor) -> torch.Tensor:
