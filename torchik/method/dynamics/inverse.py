@@ -1,5 +1,5 @@
 """Floating-base inverse dynamics: the generalized forces that produce a motion, batched over
-configurations, with no loop over links or tree levels.
+configurations (float64 or float32, any device).
 
 Conventions are the kinematics': configuration q = (p_B, R_B, s); velocity nu = (p_dot_B, omega_B,
 s_dot), the base's linear and angular velocity in world axes (iDynTree's MIXED representation);
@@ -19,25 +19,27 @@ enter as tau = M(q) nu_dot + h(q, nu) - sum_l J_l^T w_l, J_l the link's MIXED Ja
 The method (Featherstone's spatial notation, every spatial vector in world axes about the base's
 origin O = p_B, linear part first as in the Jacobians). Joint j, of world axis a_j through the origin
 o_j of its frame, has the motion subspace S_j = (r_j x a_j; a_j), r_j = o_j - p_B. Every frame's
-velocity and acceleration are sums over the joints above it, A[f, j] = 1 when joint j moves frame f:
+velocity and acceleration are sums over the joints above it, D[f,j] = 1 when joint j moves frame f
+(the tree's ancestor matrix):
 
-    V_f = V_B + sum_j A[f,j] S_j s_dot_j,                       V_B = (p_dot_B; omega_B)
-    A_f = A_B + sum_j A[f,j] (S_j s_ddot_j + V_f(j) x S_j s_dot_j), A_B = (p_ddot_B - omega_B x p_dot_B; omega_dot_B)
+    V_f = V_B + sum_j D[f,j] S_j s_dot_j,                          V_B = (p_dot_B; omega_B)
+    A_f = A_B + sum_j D[f,j] (S_j s_ddot_j + V_f(j) x S_j s_dot_j),  A_B = (p_ddot_B - omega_B x p_dot_B; omega_dot_B)
 
-(A_B: the spatial acceleration is the derivative of the velocity field at the fixed point O, not
-the classical acceleration of the base's origin; (v; w) x (u; a) = (w x u + v x a; w x a).)
+with f(j) the frame joint j moves and (v; w) x (u; a) = (w x u + v x a; w x a). A spatial
+acceleration (alpha_O; w_dot) is the derivative of the velocity field at the fixed point O, not the
+classical acceleration of the body's point at O: hence A_B's -omega_B x p_dot_B.
 Each frame carries one rigid body, its links lumped (`tensors.frame_bodies`): mass m, first moment
-h = m (c - o) and inertia I about its origin o, turned to world axes. With w, w_dot the frame's
-angular velocity and acceleration and a_o the classical acceleration of its origin
-(a_o = alpha_O + w_dot x r + w x v_o, v_o = v_O + w x r), the wrench the body needs is
+h = m (c - o) and inertia I about the frame's origin o, turned to world axes. With r = o - p_B,
+(v_O; w) = V_f, (alpha_O; w_dot) = A_f, the origin's velocity v_o = v_O + w x r and classical
+acceleration a_o = alpha_O + w_dot x r + w x v_o, the wrench the body needs, F_f = (f; n_O), is
 Newton-Euler's about its origin, moved to O:
 
     f = m (a_o - g) + w_dot x h + w x (w x h),   n_o = I w_dot + w x I w + h x (a_o - g),   n_O = n_o + r x f
 
 less the external wrenches on its links (moments moved to O). The joints carry the wrenches of the
-bodies below them: tau_j = S_j . sum_f A[f,j] F_f, and the base all of them: tau_B = sum_f F_f.
-Both sums over the tree are products with the ancestor matrix A [F,n] (dense: a human's 67 frames
-make it a small matrix), one for velocities, one for accelerations, one for forces.
+bodies below them, tau_j = S_j . sum_f D[f,j] F_f, and the base all of them, tau_B = sum_f F_f.
+The three sums over the tree (velocities, accelerations, forces) are products with D [F,n], dense:
+a human's 67 frames make it a small matrix, and there is no loop over links or tree levels.
 """
 
 from __future__ import annotations
@@ -94,16 +96,16 @@ def inverse_dynamics(model: KinematicModel, base_position: torch.Tensor, base_ro
     axis = world_axes(t, R)  # [n,3,B]
     S = torch.cat((cross(r.index_select(0, t.joint_frame), axis), axis), 1)  # [n,6,B]
     s_dot, s_ddot = nu[6:, None], nu_dot[6:, None]  # [n,1,B]
-    V = nu[:6] + _below(t, S * s_dot)  # [F,6,B]
+    V = nu[:6] + _sum_above(t, S * s_dot)  # [F,6,B]
     A_B = torch.cat((nu_dot[:3] - cross(nu[3:6], nu[:3]), nu_dot[3:6]))
-    A = A_B + _below(t, S * s_ddot + motion_cross(V.index_select(0, t.joint_frame), S) * s_dot)
+    A = A_B + _sum_above(t, S * s_ddot + motion_cross(V.index_select(0, t.joint_frame), S) * s_dot)
     g = torch.as_tensor(gravity, dtype=model.dtype, device=model.device).reshape(3, 1)
-    F = body_wrenches(t, R, r, V, A, g)  # [F,6,B]
+    wrench = body_wrenches(t, R, r, V, A, g)  # [F,6,B]
     if external_wrenches is not None:
-        F = F - _external(model, R, p, base_position.T, external_wrenches, wrench_links)
+        wrench = wrench - _external(model, R, p, base_position.T, external_wrenches, wrench_links)
     # each joint carries the bodies below it; the base, all of them
-    below = (t.ancestor.T @ F.reshape(F.shape[0], 6 * B)).reshape(n, 6, B)
-    forces = torch.cat((F.sum(0), (S * below).sum(1))).T.contiguous()  # [B,6+n]
+    below = (t.ancestor.T @ wrench.reshape(t.n_frames, 6 * B)).reshape(n, 6, B)
+    forces = torch.cat((wrench.sum(0), (S * below).sum(1))).T.contiguous()  # [B,6+n]
     torques = forces[:, 6:]
     return InverseDynamics(forces, forces[:, :6], torques, torques * velocity[:, 6:])
 
@@ -136,7 +138,7 @@ def _external(model: KinematicModel, R, p, p_B, wrenches: torch.Tensor, links: S
     return p.new_zeros(p.shape[0], 6, p.shape[-1]).index_add_(0, selection.anchor, moved)
 
 
-def _below(t: TreeTensors, X: torch.Tensor) -> torch.Tensor:
+def _sum_above(t: TreeTensors, X: torch.Tensor) -> torch.Tensor:
     """[F,6,B] each frame's sum of X [n,6,B] over the joints that move it (the ancestor matrix)."""
     n, _, B = X.shape
     return (t.ancestor @ X.reshape(n, 6 * B)).reshape(t.n_frames, 6, B)
