@@ -26,6 +26,7 @@ from .io import (
 )
 from .method import so3
 from .method.constraints import ContactLimit, Limit
+from .method.dynamics import InverseDynamics, inverse_dynamics, trajectory_dynamics
 from .method.kinematics import KinematicModel, LinearLimits, LinkKinematics
 from .method.kinematics.mass import centre_of_mass
 from .method.limits import LimitSettings
@@ -58,7 +59,7 @@ __all__ = [
     "__version__",
     # models and kinematics
     "load_model", "MODELS", "TRACKED_LINKS", "HumanSubject", "KinematicModel", "LinearLimits", "LinkKinematics",
-    "so3", "centre_of_mass",
+    "so3", "centre_of_mass", "inverse_dynamics", "trajectory_dynamics", "InverseDynamics",
     # the tracker
     "DynamicalIK", "TrackerSettings", "LimitSettings", "State", "StepDiagnostics", "Targets", "TargetSequence", "Trajectory",
     "mnte", "angular_velocity_rmse", "orientation_error",

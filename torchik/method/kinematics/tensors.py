@@ -31,6 +31,7 @@ class Geometry:
     link_position: torch.Tensor  # [N,3,S]
     link_mass: torch.Tensor  # [N,S] kg (0: no <inertial>)
     link_com: torch.Tensor  # [N,3,S] each link's centre of mass in its frame (m)
+    link_inertia: torch.Tensor  # [N,3,3,S] each link's inertia about its centre of mass, link axes (kg m^2)
 
     def to(self, dtype=None, device=None) -> "Geometry":
         return Geometry(*(t.to(dtype=dtype, device=device) for t in vars(self).values()))
@@ -54,6 +55,7 @@ def tree_geometry(tree: KinematicTree) -> Geometry:
         link_position=_soa(tree.link_position),
         link_mass=_soa(tree.link_mass),
         link_com=_soa(tree.link_com),
+        link_inertia=_soa(tree.link_inertia),
     )
 
 
@@ -79,6 +81,9 @@ class TreeTensors:
     `world` [1,1,3,3]): small_sin = R_off hat(axis), small_cos = R_off hat(axis)^2 and small_offset
     = R_off + small_cos, so that R_local = small_offset + sin small_sin - cos small_cos;
     small_angle_index [F-1] the joint of each.
+    Each frame's body, the links fixed to it lumped (`frame_bodies`), batch last: body_mass [F,S],
+    body_first_moment [F,3,S] (mass times centre of mass, in the frame), body_inertia [F,3,3,S]
+    (about the frame's origin, in its axes).
     """
 
     dtype: torch.dtype
@@ -101,6 +106,9 @@ class TreeTensors:
     small_cos: torch.Tensor
     small_angle_index: torch.Tensor
     world: torch.Tensor
+    body_mass: torch.Tensor
+    body_first_moment: torch.Tensor
+    body_inertia: torch.Tensor
 
 
 def tensors(tree: KinematicTree, geometry: Geometry, dtype, device) -> TreeTensors:
@@ -115,6 +123,7 @@ def tensors(tree: KinematicTree, geometry: Geometry, dtype, device) -> TreeTenso
     joint_frame = torch.tensor(tree.joint_frame, **long)
     axes = torch.from_numpy(np.array(tree.axes)).to(dtype=dtype, device=device)
     joint_axes = axes[joint_frame][:, :, None]  # [n,3,1] in each joint frame
+    body_mass, body_first_moment, body_inertia = frame_bodies(g, torch.tensor(tree.link_anchor, **long), tree.n_frames)
     first = lambda t: t.permute(3, 0, 1, 2)[:, 1:].contiguous()  # noqa: E731  [F,3,3,S] -> [S,F-1,3,3]
     return TreeTensors(
         dtype=dtype,
@@ -139,4 +148,23 @@ def tensors(tree: KinematicTree, geometry: Geometry, dtype, device) -> TreeTenso
         small_cos=first(g.rotation_cos_term),
         small_angle_index=frame_joint[1:],
         world=torch.eye(3, dtype=dtype, device=device)[None, None],  # [1,1,3,3]
+        body_mass=body_mass,
+        body_first_moment=body_first_moment,
+        body_inertia=body_inertia,
     )
+
+
+def frame_bodies(g: Geometry, link_anchor: torch.Tensor, n_frames: int):
+    """The links fixed to each skeleton frame lumped into one rigid body: its mass [F,S], first
+    moment [F,3,S] and rotational inertia about the frame's origin [F,3,3,S], in the frame's axes.
+
+    Link l (mass m, centre of mass c_l and inertia I_l in its own frame, the frame's offset R_l,
+    p_l) adds m, m c and R_l I_l R_l^T + m (|c|^2 E - c c^T), c = p_l + R_l c_l the centre in the
+    frame (the parallel-axis theorem). A frame without mass has a zero body."""
+    m = g.link_mass  # [N,S]
+    c = g.link_position + torch.einsum("nijs,njs->nis", g.link_rotation, g.link_com)  # [N,3,S]
+    rotated = torch.einsum("nijs,njks,nlks->nils", g.link_rotation, g.link_inertia, g.link_rotation)
+    eye = torch.eye(3, dtype=m.dtype, device=m.device)[None, :, :, None]
+    shifted = rotated + m[:, None, None] * ((c * c).sum(1)[:, None, None] * eye - c[:, :, None] * c[:, None, :])
+    lump = lambda x: x.new_zeros((n_frames, *x.shape[1:])).index_add_(0, link_anchor, x)  # noqa: E731
+    return lump(m), lump(m[:, None] * c), lump(shifted)

@@ -69,6 +69,7 @@ class KinematicTree:
     joint_parents: tuple[int, ...]
     link_mass: np.ndarray
     link_com: np.ndarray
+    link_inertia: np.ndarray
 
     @property
     def n_dof(self) -> int:
@@ -200,9 +201,11 @@ def compile_tree(robot, where: str) -> KinematicTree:
 
 
 def _mass_properties(robot, where: str) -> dict[str, np.ndarray]:
-    """link_mass [N] and link_com [N,3] (the <inertial> origin, in the link's frame; a rotated
-    inertial frame moves no centre of mass) of the parsed URDF's links."""
-    mass, com = np.zeros(len(robot.links)), np.zeros((len(robot.links), 3))
+    """link_mass [N], link_com [N,3] (the <inertial> origin, in the link's frame) and link_inertia
+    [N,3,3] (the <inertia> about the centre of mass, turned from the inertial frame, the <inertial>
+    origin's rpy, to the link's axes: R I R^T) of the parsed URDF's links."""
+    n = len(robot.links)
+    mass, com, inertia = np.zeros(n), np.zeros((n, 3)), np.zeros((n, 3, 3))
     for i, link in enumerate(robot.links):
         inertial = getattr(link, "inertial", None)
         if inertial is None:
@@ -210,8 +213,22 @@ def _mass_properties(robot, where: str) -> dict[str, np.ndarray]:
         m = float(inertial.mass or 0.0)
         if not (m >= 0.0 and np.isfinite(m)):
             raise ModelError(f"{where}: link {link.name!r} has mass {m}; a mass is a finite number >= 0")
-        mass[i], com[i] = m, _origin(inertial.origin)[1]
-    return dict(link_mass=_frozen(mass), link_com=_frozen(com))
+        mass[i] = m
+        R, com[i] = _origin(inertial.origin)
+        I = _inertia_matrix(inertial.inertia)
+        if not np.all(np.isfinite(I)):
+            raise ModelError(f"{where}: link {link.name!r} has a non-finite <inertia>")
+        inertia[i] = R @ I @ R.T
+    return dict(link_mass=_frozen(mass), link_com=_frozen(com), link_inertia=_frozen(inertia))
+
+
+def _inertia_matrix(inertia) -> np.ndarray:
+    """A URDF <inertia> (ixx, ixy, ixz, iyy, iyz, izz; absent: zero) as a symmetric [3,3]."""
+    if inertia is None:
+        return np.zeros((3, 3))
+    value = lambda name: float(getattr(inertia, name, 0.0) or 0.0)  # noqa: E731
+    xy, xz, yz = value("ixy"), value("ixz"), value("iyz")
+    return np.array([[value("ixx"), xy, xz], [xy, value("iyy"), yz], [xz, yz, value("izz")]])
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
