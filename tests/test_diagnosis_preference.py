@@ -1,7 +1,7 @@
 """The loop's preferences where the data score two causes alike and the physics does not (preference.py).
 
-A missing axis whose angle is mostly an offset comes after the effects of the sensors on either side
-of it, those in their own order (a drift of a sensor scoring above its misalignment stays ahead).
+A missing axis whose angle is mostly an offset comes after a misalignment of a sensor on either side
+of it, unless a heading drift of that sensor scores above the misalignment.
 
 A gyro reading its rates with a scale error, on a pelvis that turns steadily through a curved walk,
 simulated by experiments/sensor_physics.py (pinocchio's kinematics; the rate stream converted with the
@@ -25,6 +25,7 @@ from torchik.method.models import TRACKED_LINKS, human_urdf, load_model
 from torchik.pipelines.diagnosis import preference
 from torchik.pipelines.diagnosis.drift import HeadingDrift
 from torchik.pipelines.diagnosis.effect import Score
+from torchik.pipelines.diagnosis.gyro import GyroBias
 from torchik.pipelines.diagnosis.joints import MissingDof
 from torchik.pipelines.diagnosis.loop import diagnose
 from torchik.pipelines.diagnosis.placement import Misalignment
@@ -51,16 +52,21 @@ def _scored(effect, score: float):
     return effect
 
 
-def test_a_mostly_offset_axis_comes_after_its_sides_sensors_in_their_order():
-    """An axis between L3 and T12 whose angle is mostly an offset, scoring best; L3's heading drift
-    scoring above L3's misalignment (a drift's mean is an offset too): both come before the axis, the
-    drift first; another link's candidate keeps its place."""
+def test_a_mostly_offset_axis_comes_after_a_misalignment_of_its_sides_unless_their_drift_leads():
+    """An axis between L3 and T12 whose angle is mostly an offset, scoring best: T12's misalignment
+    comes before it (alone: T12's gyro bias stays where it scored), another link's candidate keeps its
+    place. With L3's heading drift scoring above L3's misalignment (a drift's mean is an offset too),
+    nothing moves: the drift goes first in its own place."""
     axis = _scored(MissingDof("missing_dof", "jL1T12", dict(parent="L3", child="T12", angle_mean=0.1,
                                                                 angle_rms=0.02)), 7000.0)
     elsewhere = _scored(HeadingDrift("heading_drift", "RightToe", dict(rate=0.02)), 6000.0)
+    bias = _scored(GyroBias("gyro_bias", "T12", dict(bias=[0.0, 0.0, 0.01])), 300.0)
+    turned = _scored(Misalignment("misalignment", "T12", dict(rotation_vector=[0.0, 0.0, 0.1])), 144.0)
+    out = preference.offset_first(None, [axis, elsewhere, bias, turned])
+    assert out == [turned, axis, elsewhere, bias]
+    assert "mostly an offset" in turned.notes and "mostly an offset" not in bias.notes
+
     drift = _scored(HeadingDrift("heading_drift", "L3", dict(rate=0.03)), 263.0)
-    turned = _scored(Misalignment("misalignment", "L3", dict(rotation_vector=[0.0, 0.0, 0.1])), 144.0)
-    below = _scored(Misalignment("misalignment", "T12", dict(rotation_vector=[0.0, 0.0, 0.02])), 22.0)
-    out = preference.offset_first(None, [axis, elsewhere, drift, turned, below])
-    assert out == [drift, turned, axis, elsewhere, below]
-    assert "mostly an offset" in drift.notes and "mostly an offset" in turned.notes
+    below = _scored(Misalignment("misalignment", "L3", dict(rotation_vector=[0.0, 0.0, 0.1])), 144.0)
+    passing = [axis, elsewhere, drift, below]
+    assert preference.offset_first(None, passing) == passing

@@ -9,11 +9,18 @@ round finds an axis moving with the joint: a knee's missing ab/adduction, a few 
 with flexion, or an elbow's with its bend. A sensor's frame turned on its segment is the likelier
 cause (a strap, a marker cluster), and the data can tell the two once the turn is on the right side.
 
-So once such an axis is kept beside a misalignment of one of its two segments, the other side is
-tried: the recording without both, a misalignment of the other segment fitted first, then the first
-segment's again (its own offset, if any), and the axis fitted once more. Where the axis is then no
-longer significant, or no longer plausible, the misalignments replace it and the first one; where it
-still is, it was a joint's motion and stays.
+The wrong side can also be across the first segment's other joint. A hand's sensor turned about the
+hand's long axis, which the wrist cannot follow, leaves a residual between hand and forearm that a
+turn of the forearm's sensor the other way explains as well at the elbow's mean pronation; the turn
+taken by the forearm is then wrong by the forearm's pronation away from it, and the elbow asks for an
+axis. So the first segment's other tracked neighbours (those without a misalignment of their own
+kept) are tried after the joint's other side.
+
+So once such an axis is kept beside a misalignment of one of its two segments, each of these
+segments is tried in turn: the recording without both, a misalignment of that segment fitted first,
+then the first segment's again (its own offset, if any), and the axis fitted once more. Where the
+axis is then no longer significant, or no longer plausible, the misalignments replace it and the
+first one; where it still is after every try, it was a joint's motion and stays.
 """
 
 from __future__ import annotations
@@ -75,14 +82,24 @@ def _add(v: Subject, effect: Effect, links, gain: float, progress: bool, max_sam
 
 def other_side(s: Subject, axis: MissingDof, links, gain: float, threshold: float, progress: bool, max_samples: int,
                say: Callable[[str], None]) -> bool:
-    """Try the kept `axis`'s neighbouring misalignment on the joint's other segment (module docstring);
-    adopt it into s where the axis no longer stands. Returns whether it was adopted."""
+    """Try the kept `axis`'s neighbouring misalignment on the joint's other segment, then on the first
+    segment's other neighbours (module docstring); adopt the first that leaves the axis standing no
+    longer. Returns whether one was adopted."""
     sides = (axis.params["parent"], axis.params["child"])
     turned = [e for e in s.effects if isinstance(e, Misalignment) and e.target in sides]
     if len(turned) != 1 or not all(side in links for side in sides):
         return False
     first = turned[0]
-    other = sides[1] if first.target == sides[0] else sides[0]
+    kept = {e.target for e in s.effects if isinstance(e, Misalignment)}
+    others = [sides[1] if first.target == sides[0] else sides[0]]
+    others += [n for n in s.neighbours(first.target) if n not in sides and n in links and n not in kept]
+    return any(_moved(s, first, axis, other, links, gain, threshold, progress, max_samples, say) for other in others)
+
+
+def _moved(s: Subject, first: Misalignment, axis: MissingDof, other: str, links, gain: float, threshold: float,
+           progress: bool, max_samples: int, say: Callable[[str], None]) -> bool:
+    """other_side's try of `other`'s sensor turned in place of `first`'s: adopted into s where the axis no
+    longer stands. Returns whether it was."""
     v = _rebuilt(s, (first, axis))
     analyse_subjects([v], links, gain, progress, max_samples)
     moved, why = _fitted(v, "misalignment", other, threshold, links)
@@ -106,8 +123,8 @@ def other_side(s: Subject, axis: MissingDof, links, gain: float, threshold: floa
         s.rejected.append(e)
     moved.notes = "; ".join(filter(None, [moved.notes, (
         f"in place of a misalignment of {first.target} and a missing axis at {axis.target} (moving over "
-        f"{', '.join(f'{math.degrees(x):.1f}' for x in axis.params['angle_range'])} deg): the joint cannot turn the two "
-        f"segments against each other about that axis, and a turn on the wrong side of it asks for one moving "
+        f"{', '.join(f'{math.degrees(x):.1f}' for x in axis.params['angle_range'])} deg): the joints cannot turn the two "
+        f"segments against each other about that axis, and a turn on the wrong side of them asks for one moving "
         f"with the joint")]))
     s.recording, s.urdf, s.model, s.analysis, s.steps = v.recording, v.urdf, v.model, v.analysis, v.steps
     say(f"{first.kind} at {first.target} and the axis at {axis.target} replaced by {what}")

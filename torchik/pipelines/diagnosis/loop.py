@@ -250,12 +250,6 @@ def _drop_negligible(subjects: list[Subject], links, gain: float, progress: bool
     analyse_subjects(moved, links, gain, progress, max_samples)
 
 
-def _neighbours(s: Subject, link: str) -> list[str]:
-    """The tracked links one joint from `link` (its nearest tracked ancestor and the links whose it is)."""
-    groups = joints.joint_groups(s.urdf, s.current[0].links)
-    return sorted({g.parent for g in groups if g.child == link} | {g.child for g in groups if g.parent == link})
-
-
 def _confounded(s: Subject) -> dict[str, list[dict]]:
     """Per tracked link, the turns of its sensor the data tell from a neighbour's only poorly
     (placement.confounds), on the first analysis: what no diagnosis of these data can attribute."""
@@ -263,7 +257,7 @@ def _confounded(s: Subject) -> dict[str, list[dict]]:
     links = analysis.links
     out = {}
     for name in links:
-        found = placement.confounds(analysis, b, links.index(name), [links.index(n) for n in _neighbours(s, name)])
+        found = placement.confounds(analysis, b, links.index(name), [links.index(n) for n in s.neighbours(name)])
         if found:
             out[name] = [dict(c, neighbour=links[c["neighbour"]]) for c in found]
     return out
@@ -278,7 +272,7 @@ def _note_confounds(s: Subject) -> None:
     for e in s.effects:
         if not isinstance(e, placement.Misalignment):
             continue
-        found = placement.confounds(analysis, b, links.index(e.target), [links.index(n) for n in _neighbours(s, e.target)])
+        found = placement.confounds(analysis, b, links.index(e.target), [links.index(n) for n in s.neighbours(e.target)])
         if not found:
             continue
         e.params["confounds"] = [dict(c, neighbour=links[c["neighbour"]]) for c in found]

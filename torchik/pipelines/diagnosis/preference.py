@@ -119,29 +119,29 @@ def gyro_first(s: Subject, passing: list[Effect], threshold: float) -> list[Effe
 
 def offset_first(s: Subject, passing: list[Effect]) -> list[Effect]:
     """`passing` with a misalignment of the links on either side of a missing axis put before the axis
-    (and the effects of those sensors that score above it, a drift, with it, in their order)
     where the axis' angle is mostly an offset (its mean beyond its rms about it): a constant angle is a
     sensor's frame turned on its segment, which one to three parameters explain, and a joint's angle
     comes and goes; fitted first, an axis takes the offset with the motion, and the frame's turn is
-    never named (a shank's frame turned about the knee's missing axis came back as that axis)."""
+    never named (a shank's frame turned about the knee's missing axis came back as that axis).
+    Not where a heading drift of that sensor scores above its misalignment: a drift's mean is an offset
+    too, and the drift, taken first, leaves the misalignment what is left (moved ahead alone, the
+    misalignment takes the drift's mean and the drift comes back split over the neighbours)."""
     out = list(passing)
     for m in passing:
         if not isinstance(m, joints.MissingDof) or abs(m.params.get("angle_mean", 0.0)) <= m.params.get("angle_rms", 0.0):
             continue
         sides = (m.params["child"], m.params["parent"])
-        # the sensors' own effects on either side, in their order: a drift of one of them (its heading's
-        # mean is an offset too) that scores above its misalignment stays ahead of it
         sensors = [c for c in out[out.index(m):] if not c.model_effect and c.target in sides]
         frame = next((c for c in sensors if c.kind == "misalignment"), None)
-        if frame is None:
+        if frame is None or any(c.kind == "heading_drift" and c.target == frame.target
+                                for c in sensors[:sensors.index(frame)]):
             continue
         why = (f"preferred to the missing axis at {m.target}, whose angle is mostly an offset "
                f"({math.degrees(m.params['angle_mean']):.1f} deg, about which it moves by "
                f"{math.degrees(m.angle_rms()):.1f})")
-        for c in sensors[:sensors.index(frame) + 1]:
-            out.remove(c)
-            out.insert(out.index(m), c)
-            c.notes = "; ".join(filter(None, [c.notes, why]))
+        out.remove(frame)
+        out.insert(out.index(m), frame)
+        frame.notes = "; ".join(filter(None, [frame.notes, why]))
     return out
 
 

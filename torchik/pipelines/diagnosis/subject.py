@@ -13,6 +13,7 @@ from .analysis import Analysis, analyse
 from .candidates import candidates
 from .chunks import Chunking
 from .effect import Effect, halves
+from .joints import joint_groups
 from .posture import held_by_reference
 
 
@@ -86,6 +87,11 @@ class Subject:
         final.params.update({name: c.params[name] for name in c.judged if name in c.params})
         why = final.implausible() or held_by_reference(final, self.model, self.current[0].poses[self.current[1]])
         return final, why
+
+    def neighbours(self, link: str) -> list[str]:
+        """The tracked links one joint from `link` (its nearest tracked ancestor and the links whose it is)."""
+        groups = joint_groups(self.urdf, self.current[0].links)
+        return sorted({g.parent for g in groups if g.child == link} | {g.child for g in groups if g.parent == link})
 
     def add(self, effect: Effect) -> None:
         if effect.model_effect:
