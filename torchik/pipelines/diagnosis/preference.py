@@ -102,18 +102,27 @@ def gyro_first(s: Subject, passing: list[Effect], threshold: float) -> list[Effe
     integral's word, own_gyro_score, significant by itself) put before the model effects (a missing axis,
     a moved limit) on the links around it: the orientations alone may fit an axis moving sample by sample
     better than one rate, but only the drift explains what the gyro says of its own orientations, which
-    no joint of the model changes."""
+    no joint of the model changes.
+    So does a drift of a sensor whose gyro bias is kept: a filter that corrects tilt and not heading
+    integrates the bias' vertical part into the heading, and the bias, fitted first on the gyro
+    against the orientations, takes the gyro's word of that turn with it (a constant in the sensor
+    frame of a segment that keeps its attitude). The drift is then what the bias implies, where an
+    axis or a limit would be a second cause (an upper arm's drift, which the shoulder follows, shows
+    through the elbow only, as an axis moving with the arm's swing)."""
+    biased = {e.target for e in s.effects if e.kind == "gyro_bias"} if s is not None else set()
     out = list(passing)
     for d in passing:
-        if d.kind != "heading_drift" or d.params.get("gyro_shares") or d.params.get("own_gyro_score", 0.0) <= threshold:
+        shown = d.params.get("own_gyro_score", 0.0) > threshold
+        if d.kind != "heading_drift" or d.params.get("gyro_shares") or not (shown or d.target in biased):
             continue
         near = area(s, d)[1]
         model = next((m for m in out[:out.index(d)] if m.model_effect and area(s, m)[0] & near), None)
         if model is not None:
             out.remove(d)
             out.insert(out.index(model), d)
-            d.notes = "; ".join(filter(None, [d.notes, f"preferred to {model.kind} at {model.target}: its own gyro "
-                                                       f"shows the turn (score {d.params['own_gyro_score']:.0f})"]))
+            why = (f"its own gyro shows the turn (score {d.params['own_gyro_score']:.0f})" if shown else
+                   "its gyro's bias is kept, whose vertical part a filter without heading reference integrates")
+            d.notes = "; ".join(filter(None, [d.notes, f"preferred to {model.kind} at {model.target}: {why}"]))
     return out
 
 
