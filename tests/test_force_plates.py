@@ -69,6 +69,13 @@ def write_plates(path, plates, signals, frames, markers=None, segments=("PEL", "
     c3d["parameters"]["POINT"]["LABELS"]["value"] = tuple(labels)
     c3d.add_parameter("POINT", "UNITS", ["mm"])
     c3d["data"]["points"] = points
+    add_plates(c3d, plates, signals)
+    c3d.write(str(path))
+    return path
+
+
+def add_plates(c3d, plates, signals) -> None:
+    """`plates` (type 2) in an ezc3d file object, their analog channels (N, N mm) holding `signals` [S,6] each."""
     names = [f"{q}{k + 1}" for k in range(len(plates)) for q in ("Fx", "Fy", "Fz", "Mx", "My", "Mz")]
     c3d["parameters"]["ANALOG"]["RATE"]["value"] = [ANALOG_RATE]
     c3d["parameters"]["ANALOG"]["LABELS"]["value"] = tuple(names)
@@ -80,8 +87,6 @@ def write_plates(path, plates, signals, frames, markers=None, segments=("PEL", "
     c3d.add_parameter("FORCE_PLATFORM", "CORNERS", np.stack([p.corners() for p in plates], axis=2))
     c3d.add_parameter("FORCE_PLATFORM", "ORIGIN", np.stack([p.stored_origin for p in plates], axis=1))
     c3d.add_parameter("FORCE_PLATFORM", "CHANNEL", np.arange(1.0, 6 * len(plates) + 1).reshape(len(plates), 6).T)
-    c3d.write(str(path))
-    return path
 
 
 def constant(value, samples) -> np.ndarray:

@@ -75,6 +75,36 @@ def test_calibration_recovers_unknown_sensor_offsets_exactly():
     assert mapped.meta["link_map"]["calibration"]["reference_pose"] == "npose"
 
 
+def test_a_twist_calibration_keeps_the_segments_long_axis_and_finds_its_turn_about_it():
+    """calibrate = "twist": a subject standing with a thigh bent 0.3 rad forward and 0.2 rad out, whose
+    segment frame is also turned 0.4 rad about its long (z) axis from the link's: the offset is the turn
+    about z alone (0.4 rad), so the mapped link's z axis is the segment's in every frame, where a full
+    calibration would tilt it by the stance's 0.36 rad."""
+    model = load_model("human48")
+    p0, R0, _ = model.zero_configuration(1)
+    reference = model(p0, R0, reference_configuration(model, "npose"), ["Pelvis", "RightUpperLeg"],
+                      jacobian=False).rotation[0].numpy()
+    stance = so3.exp(torch.tensor([0.2, -0.3, 0.0], dtype=torch.float64)).numpy()  # out and forward
+    turn = so3.exp(torch.tensor([0.0, 0.0, 0.4], dtype=torch.float64)).numpy()
+    later = so3.random_rotation((5,), torch.Generator().manual_seed(3)).numpy()
+    thigh = np.concatenate(((stance @ reference[1] @ turn.T)[None], later))  # the segment: R_link C^T
+    orientation = np.stack((np.broadcast_to(reference[0], thigh.shape), thigh), 1)
+    T = len(thigh)
+    recording = Recording(time=np.arange(T) / 100.0, links=("PEL", "RFE"), orientation=orientation,
+                          angular_velocity=np.zeros((T, 2, 3)), base_link="PEL", base_position=np.zeros((T, 3)),
+                          base_linear_velocity=np.zeros((T, 3)))
+    entries = (LinkEntry("Pelvis", "PEL", None), LinkEntry("RightUpperLeg", "RFE", None, ("RFE",), twist_only=True))
+    link_map = LinkMap("test", "human48", entries, "Pelvis", "PEL", "npose", "x", "<test>")
+    calibrated = calibrate(link_map, recording, model, frame=0)
+    np.testing.assert_allclose(calibrated.entries[1].offset, turn, atol=1e-12)
+    mapped = apply_map(recording, calibrated)
+    np.testing.assert_allclose(mapped.orientation[:, 1, :, 2], thigh[:, :, 2], atol=1e-12)
+    full = calibrate(replace(link_map, entries=(entries[0], replace(entries[1], twist_only=False))), recording, model,
+                     frame=0)
+    tilt = np.arccos(apply_map(recording, full).orientation[0, 1, :, 2] @ thigh[0, :, 2])
+    assert tilt == pytest.approx(np.arccos(stance[2, 2]), abs=1e-9) and tilt > 0.35
+
+
 def test_maps_refuse_what_they_cannot_do():
     human = load_model("human66")
     rec = scenario("tpose", human, ["Pelvis", "Head"], duration=0.2)

@@ -97,6 +97,22 @@ def test_bvh_segment_lengths_are_the_bone_offsets_norms(file, map_name, request)
 
 
 @pytest.mark.parametrize("source", ["written", "shared"])
+def test_a_plug_in_gait_static_trial_places_the_hips_at_its_hip_joint_centres(source, request):
+    """The hips sit across the pelvis as far apart as the file's hip joint centres (LHJC, RHJC): the written
+    subject's own (the template's, scaled), HC002's 92.6 mm, narrower than the template's 141 mm at 1.45 m."""
+    recording = read(plug_in_gait(request, source)[0])
+    built = subject_from_recording(recording)
+    width = recording.meta["skeleton"]["hip_width"]
+    right, left = (built.subject.joint_origins[f"{side}UpperLeg"] for side in ("Right", "Left"))
+    assert right[1] == pytest.approx(-width / 2) and left[1] == pytest.approx(width / 2)
+    template = 2 * abs(by_name("RightUpperLeg").joint_origin[1]) * 1.45 / 1.68
+    if source == "written":
+        assert width == pytest.approx(template, abs=1e-6)
+    else:
+        assert width == pytest.approx(0.0926, abs=5e-4) and width < template - 0.04
+
+
+@pytest.mark.parametrize("source", ["written", "shared"])
 def test_a_converted_npz_builds_the_same_subject(tmp_path, source, request):
     recording = read(plug_in_gait(request, source)[0])
     save_recording(recording, tmp_path / "static.npz")

@@ -171,11 +171,16 @@ UNLABELLED = tuple(f"*{k}" for k in range(100))  # what Vicon could not label: s
 
 def pig_misalignment(segment: str) -> np.ndarray:
     """How far a Plug-in Gait segment's frame is from the model link's when the subject stands in the
-    N-pose (its markers' placement: a few degrees; the pelvis tilted forward, its heading kept)."""
+    N-pose (its markers' placement: a few degrees; the pelvis tilted forward, its heading kept; the
+    femur and tibia only turned about their long axes, which run through the joint centres as the
+    model's thigh and shank do)."""
     if segment == "PEL":
         return so3.exp(torch.tensor([0.0, 0.2, 0.0], dtype=torch.float64)).numpy()
     g = torch.Generator().manual_seed(sum(map(ord, segment)))
-    return so3.exp(0.08 * torch.randn(3, generator=g, dtype=torch.float64)).numpy()
+    turn = 0.08 * torch.randn(3, generator=g, dtype=torch.float64)
+    if segment[1:] in ("FE", "TI"):
+        turn[:2] = 0.0
+    return so3.exp(turn).numpy()
 
 
 def pig_frames(model, recording: Recording) -> dict[str, np.ndarray]:

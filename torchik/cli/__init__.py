@@ -17,10 +17,11 @@ import threading
 
 from ..data import version
 from ..errors import TorchikError
-from . import bench, cohort, diagnose, experiment, live, models, recordings, replay, retarget, track
+from . import bench, cohort, diagnose, dynamics, experiment, live, models, recordings, replay, retarget, track
 from .common import Parser, Terminated, terminate_as_interrupt
 
-COMMANDS = (track, models, recordings, bench, experiment, retarget, cohort, diagnose, live, replay)  # in --help's order
+# in --help's order
+COMMANDS = (track, models, recordings, bench, experiment, retarget, cohort, diagnose, dynamics, live, replay)
 
 
 def build_parser() -> Parser:

@@ -161,17 +161,48 @@ def model_urdf(name: str, subject=None):
     return icub_urdf_path() if name == "icub" else human_urdf(int(name[-2:]), subject)
 
 
-def add_subject_argument(parser: argparse.ArgumentParser) -> None:
-    """--subject-from: track with the subject's own human model, built from a recording."""
+def add_subject_argument(parser: argparse.ArgumentParser, calibration_builds: bool = False) -> None:
+    """--subject-from: track with the subject's own human model, built from a recording (calibration_builds:
+    the command builds it from a --calibration trial that states the body mass when none is given,
+    `subject_source`)."""
+    default = ("; without it, a --calibration trial that states the body mass (Plug-in Gait's "
+               "PROCESSING:Bodymass) builds it" if calibration_builds else "")
     parser.add_argument("--subject-from", metavar="RECORDING",
                         help="build the human model from this recording's skeleton (MVNX joint points, BVH bone "
                              "offsets through the map, a C3D static trial's Plug-in Gait lengths; a converted .npz "
-                             "keeps them) instead of the default subject")
+                             "keeps them) instead of the default subject" + default)
+
+
+def states_mass(path: str | None) -> bool:
+    """Whether a recording states the subject's body mass (a Plug-in Gait trial's PROCESSING:Bodymass)."""
+    if not path:
+        return False
+    from ..io import read
+
+    return bool((read(path).meta.get("skeleton") or {}).get("mass"))
+
+
+def subject_source(args: argparse.Namespace, *more: str | None) -> str | None:
+    """The recording a human model's subject is built from: --subject-from, else the first of
+    --calibration and `more` (e.g. the input) that states the body mass (a Plug-in Gait trial: the
+    model's segment masses, centres of mass and inertias then follow PROCESSING:Bodymass and its
+    lengths), else None (the default subject). None for a model given as a URDF or not human."""
+    if getattr(args, "subject_from", None):
+        return args.subject_from
+    if getattr(args, "urdf", None) or not str(getattr(args, "model", "")).startswith("human"):
+        return None
+    return next((path for path in (getattr(args, "calibration", None), *more) if states_mass(path)), None)
 
 
 def subject_from(path: str | None, map_name: str | None = None, say=print):
     """The HumanSubject a recording measures (None without a path), with one line saying where its
     numbers came from."""
+    built = build_subject(path, map_name, say)
+    return None if built is None else built.subject
+
+
+def build_subject(path: str | None, map_name: str | None = None, say=print):
+    """`subject_from`'s BuiltSubject (the subject and where each of its numbers came from), or None."""
     if path is None:
         return None
     from ..io import read
@@ -181,4 +212,4 @@ def subject_from(path: str | None, map_name: str | None = None, say=print):
     say(f"subject from {path}: height {built.subject.height:.3f} m ({built.height_from}), mass "
         f"{built.subject.mass:.1f} kg ({built.mass_from}); {len(built.from_file)} segment lengths and "
         f"{len(built.subject.joint_origins)} joint placements from the file, {len(built.scaled)} segments scaled")
-    return built.subject
+    return built

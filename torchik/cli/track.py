@@ -49,6 +49,7 @@ from .common import (
     non_negative,
     positive,
     subject_from,
+    subject_source,
     torch_device,
 )
 
@@ -83,7 +84,7 @@ def add_parser(subparsers) -> None:
                         help="a recording (.npz) or source file whose segments are the model's links")
     add_map_arguments(track)
     track.add_argument("--model", default="human66", choices=MODELS)
-    add_subject_argument(track)
+    add_subject_argument(track, calibration_builds=True)
     track.add_argument("--urdf", metavar="FILE", help="track with this URDF of --model instead, e.g. the model.urdf "
                        "`torchik diagnose` writes (--model still names the tracked links)")
     track.add_argument("--sensor-calibration", metavar="JSON", help="undo the sensor effects (offsets, biases, delays, "
@@ -242,11 +243,11 @@ def _outputs(args: argparse.Namespace, model, subject, links, position_links, re
 
 
 def _load(args: argparse.Namespace, device):
-    """The model (with the subject built from --subject-from, if given), the recording in its links
-    (a .npz file read as its frames are needed; another format, or one mapped or calibrated, read
-    whole; or a scenario), the tracked links, a phrase naming the source, the links the map
-    found no segment for (left to the model: no target pulls them), and, for a recording that
-    measures no base position, how the base is tracked (--base-position; None otherwise)."""
+    """The model (its subject from --subject-from, else a --calibration trial stating the body mass:
+    `subject_source`), the recording in its links (a .npz file read as its frames are needed; another
+    format, or one mapped or calibrated, read whole; or a scenario), the tracked links, a phrase naming
+    the source, the links the map found no segment for (left to the model: no target pulls them), and,
+    for a recording that measures no base position, how the base is tracked (--base-position; None otherwise)."""
     from ..io import Recording, RecordingFile, map_recording, open_recording, read
     from ..io.base_position import NOT_MEASURED, measures_base_position, standing_base_position, unmeasured_base
     from ..io.maps import default_map
@@ -255,7 +256,8 @@ def _load(args: argparse.Namespace, device):
 
     if args.subject_from and (args.urdf or args.model == "icub"):
         raise InputError("--subject-from builds a human model: give it with --model human66 or human48, without --urdf")
-    subject = subject_from(args.subject_from, args.map, say=(lambda _: None) if args.quiet else print)
+    subject = subject_from(subject_source(args) if args.input else args.subject_from, args.map,
+                           say=(lambda _: None) if args.quiet else print)
     if args.urdf:  # e.g. the augmented model a diagnosis wrote
         from ..pipelines.diagnosis.calibration import load_urdf_model
 

@@ -16,6 +16,8 @@ Where the file has force plates (FORCE_PLATFORM), the reader adds each foot's `e
 the plates' ground reactions (force_plates.py) at the point frames, given to the foot nearest
 each contact (foot_contacts.py, the heel and toe markers LHEE-LTOE, RHEE-RTOE or, without them,
 the ankle joint centre and the foot's origin), with the plates and contacts in meta["force_plates"].
+Vicon's gait events (EVENT: "Foot Strike", "Foot Off", per side) are kept in meta["events"], at this
+file's frames.
 """
 
 from __future__ import annotations
@@ -66,7 +68,7 @@ PROXIMAL_JOINT = {"PEL": "PELO", "RFE": "RHJC", "LFE": "LHJC", "RTI": "RFEO", "L
 def _plug_in_gait_skeleton(parameters, xyz: np.ndarray, valid: np.ndarray, index: dict, unit: str) -> dict:
     """The subject's measures a Plug-in Gait file holds: height (m) and mass (kg) from PROCESSING,
     segment lengths (m) by Plug-in Gait segment, from PROCESSING or as the median distance between
-    the joint centres that bound the segment."""
+    the joint centres that bound the segment, and the distance between the hip joint centres (m)."""
     processing = parameters.get("PROCESSING", {})
 
     def value(name):
@@ -80,8 +82,34 @@ def _plug_in_gait_skeleton(parameters, xyz: np.ndarray, valid: np.ndarray, index
             if seen.any():
                 lengths[seg] = float(np.median(np.linalg.norm(xyz[seen, index[a]] - xyz[seen, index[b]], axis=-1)))
     height = value("Height")
-    return dict(format="c3d", height=height * UNIT_SCALE[unit] if height else None, mass=value("Bodymass"),
-                lengths=lengths)
+    skeleton = dict(format="c3d", height=height * UNIT_SCALE[unit] if height else None, mass=value("Bodymass"),
+                    lengths=lengths)
+    if "LHJC" in index and "RHJC" in index:  # the hip joint centres (Plug-in Gait's, from the pelvis markers)
+        seen = valid[:, index["LHJC"]] & valid[:, index["RHJC"]]
+        if seen.any():
+            skeleton["hip_width"] = float(np.median(np.linalg.norm(xyz[seen, index["LHJC"]] - xyz[seen, index["RHJC"]],
+                                                                   axis=-1)))
+    return skeleton
+
+
+def _events(parameters: dict, first_frame: int, rate: float, frames: int) -> list[dict]:
+    """The file's EVENT group (Vicon's gait events: "Foot Strike", "Foot Off" with context "Left" or
+    "Right") within its frames: label, context, the frame (from 0, in this file) and its time (s, the
+    recording's). EVENT:TIMES holds (minutes, seconds) of the capture, whose frame f (from 0) is at f /
+    rate; this file starts at capture frame `first_frame`."""
+    group = parameters.get("EVENT", {})
+    if "TIMES" not in group or "LABELS" not in group:
+        return []
+    times = np.asarray(group["TIMES"]["value"], dtype=np.float64).reshape(2, -1)
+    labels = [str(x).strip() for x in group["LABELS"]["value"]]
+    contexts = [str(x).strip() for x in group.get("CONTEXTS", {}).get("value", [""] * len(labels))]
+    events = []
+    for k in range(min(len(labels), times.shape[1])):  # a few events
+        frame = int(round((60.0 * times[0, k] + times[1, k]) * rate)) - first_frame
+        if 0 <= frame < frames:
+            events.append(dict(label=labels[k], context=contexts[k] if k < len(contexts) else "", frame=frame,
+                               time_s=frame / rate))
+    return sorted(events, key=lambda e: e["frame"])
 
 
 def _declared_frames(path: Path, parameters: dict) -> int | None:
@@ -216,6 +244,7 @@ def read_c3d(path: str | Path, base_link: str = "PEL", units: str | None = None,
                 angular_velocity="derived",  # the orientations' central difference: no gyro
                 first_frame=int(c3d["header"]["points"]["first_frame"]), triad_max_deviation=worst,
                 missing_frames=missing, skeleton=_plug_in_gait_skeleton(c3d["parameters"], xyz, valid, index, unit),
+                events=_events(c3d["parameters"], int(c3d["header"]["points"]["first_frame"]), rate, T),
                 note="segment frames are Plug-in Gait's (anterior, lateral, proximal): calibrate them with a link map")
     position = np.full((T, len(segments), 3), np.nan)  # NaN: a segment without a joint centre, or not seen
     for i, segment in enumerate(segments):

@@ -10,7 +10,11 @@ R_link = R_segment C, given as one of
   recording in which the subject holds the map's `reference_pose` ("tpose": the human models'
   zero configuration; "npose": arms down), facing the heading of the base segment's
   `base_forward_axis` ("x", "-z", ...: the base segment's axis that points forward in that pose;
-  as the IMU placers of Xsens MVN and OpenSense do from a static pose).
+  as the IMU placers of Xsens MVN and OpenSense do from a static pose);
+- `calibrate = "twist"`: only the turn about the z axis calibrated so, C = Rz(psi) the turn closest
+  to that C, so that the link's z axis is the segment's: for anatomical frames whose z axis runs
+  from joint centre to joint centre (Plug-in Gait's femur and tibia), whose direction the static
+  pose must not override (a subject does not stand with the model's straight, vertical legs).
 
 Angular velocities are world-frame and unchanged by a constant offset; the base position is the
 base segment's. A link whose segments the recording lacks (a clinical lower-body marker set has no
@@ -42,6 +46,7 @@ class LinkEntry:
     segment: str  # the source segment (the first of `alternatives` until resolved against a recording)
     offset: np.ndarray | None  # C [3,3], or None when it is to be calibrated
     alternatives: tuple[str, ...] = ()  # segments that can stand for the link, in order of preference
+    twist_only: bool = False  # calibrate = "twist": only the turn about z is calibrated, the z axes kept one
 
 
 @dataclass(frozen=True)
@@ -125,13 +130,15 @@ def load_map(name_or_path: str | Path) -> LinkMap:
             offset = _rpy(item["link_in_segment_rpy"], where)
         elif given[0] == "segment_in_link_rpy":
             offset = _rpy(item["segment_in_link_rpy"], where).T
+        elif item["calibrate"] not in (True, "twist"):
+            raise RecordingError(f"{where}: calibrate must be true or \"twist\", got {item['calibrate']!r}")
         else:
             offset = None
         alternatives = item["source"] if isinstance(item["source"], list) else [item["source"]]
         if not alternatives or not all(isinstance(a, str) for a in alternatives):
             raise RecordingError(f"{where}: 'source' must be a segment name or a list of them")
         # `optional = true`, which older maps give, is what every link is now: left out when no segment is there
-        entries.append(LinkEntry(link, alternatives[0], offset, tuple(alternatives)))
+        entries.append(LinkEntry(link, alternatives[0], offset, tuple(alternatives), item.get("calibrate") == "twist"))
     base = spec["base"]
     if base.get("link") not in spec["links"]:
         raise RecordingError(f"{path}: base.link {base.get('link')!r} is not one of the mapped links")
@@ -284,10 +291,18 @@ def calibrate(link_map: LinkMap, recording: Recording, model: KinematicModel, fr
     entries = list(link_map.entries)
     for i in todo:
         e = entries[i]
-        entries[i] = replace(e, offset=R_source[i].T @ R_reference[i])  # keeps alternatives and optional
+        offset = R_source[i].T @ R_reference[i]
+        entries[i] = replace(e, offset=twist_about_z(offset) if e.twist_only else offset)  # keeps alternatives
     calibrated = dict(frame=k, time_s=time_s, reference_pose=link_map.reference_pose,
                       recording=recording.meta.get("source"), heading_axis=heading_axis)
     return replace(link_map, entries=tuple(entries), calibration=calibrated)
+
+
+def twist_about_z(C: np.ndarray) -> np.ndarray:
+    """The turn about z, Rz(psi) [3,3], nearest C [3,3] (the largest trace of C^T Rz(psi))."""
+    psi = math.atan2(C[1, 0] - C[0, 1], C[0, 0] + C[1, 1])
+    c, s = math.cos(psi), math.sin(psi)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def apply_map(recording: Recording, link_map: LinkMap, model: KinematicModel | None = None,

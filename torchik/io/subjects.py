@@ -8,7 +8,8 @@ format, so a converted .npz serves as well as the source file) becomes a HumanSu
   its source joint to the source joint of the segment it carries, summed along the bones between).
 - C3D (Plug-in Gait static trial): height, mass and femur, tibia and foot lengths from the file's
   PROCESSING parameters; upper arm and forearm lengths between the joint centres at the clavicle,
-  humerus and radius origins.
+  humerus and radius origins; the hips' placement across the pelvis from the distance between the
+  hip joint centres (LHJC, RHJC), their height and depth the template's scaled.
 
 A segment length is the template's main dimension (see method.models.human): joint to the next
 joint along the segment. Segments the file does not measure are scaled from the height.
@@ -16,6 +17,7 @@ joint along the segment. Segments the file does not measure are scaled from the 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +33,7 @@ TEMPLATE_LENGTH = {s.name: s.length for s in TEMPLATE}
 PARENT = {s.name: s.parent for s in TEMPLATE}
 STATURE = ("Pelvis", "L5", "L3", "T12", "T8", "Neck", "RightUpperLeg", "RightLowerLeg", "LeftUpperLeg", "LeftLowerLeg")
 LENGTH_RANGE = (0.005, 1.5)  # m: HumanSubject's
+HIP_WIDTH = (0.05, 0.5)  # m between the hip joint centres: a child's to a large adult's, with room
 
 
 @dataclass(frozen=True)
@@ -83,6 +86,16 @@ def _bvh(skeleton: dict, sources: dict[str, str]) -> dict[str, float]:
     return lengths
 
 
+def _hips(width: float | None, height: float) -> dict[str, tuple[float, float, float]]:
+    """The hip joints in the pelvis' frame, `width` (m) apart across it (none without a width, or one
+    beyond HIP_WIDTH); their other coordinates the template's scaled to `height`."""
+    if width is None or not HIP_WIDTH[0] <= width <= HIP_WIDTH[1]:
+        return {}
+    k = height / TEMPLATE_HEIGHT
+    return {s.name: (s.joint_origin[0] * k, math.copysign(width / 2, s.joint_origin[1]), s.joint_origin[2] * k)
+            for s in TEMPLATE if s.name in ("RightUpperLeg", "LeftUpperLeg")}
+
+
 def subject_from_recording(recording: Recording, height: float | None = None, mass: float | None = None,
                            map_name: str | None = None) -> BuiltSubject:
     """The subject a recording measures (see the module's docstring). height (m) and mass (kg) given
@@ -124,6 +137,8 @@ def subject_from_recording(recording: Recording, height: float | None = None, ma
         mass, mass_from = float(skeleton["mass"]), "the file"
     else:
         mass, mass_from = TEMPLATE_MASS, "the template's: the file has none; give --mass"
+    if skeleton["format"] == "c3d":
+        origins = _hips(skeleton.get("hip_width"), height)
     subject = HumanSubject(height=height, mass=mass, segment_lengths=lengths, joint_origins=origins)
     scaled = tuple(s for s in SEGMENTS if s not in lengths)
     return BuiltSubject(subject, source, lengths, scaled, rejected, height_from, mass_from, used_map)
