@@ -8,6 +8,9 @@ sensor's, and the elbow's missing axis fitted with it in place.
 
 Property: the other side is tried and adopted (the upper arm's sensor turned by the injected turn
 within 2 deg, no axis at the elbow); on a walk whose elbow has the axis Human48 lacks, the axis stays.
+The same walk with the hand's sensor turned 10 deg about the hand's long axis (which the wrist cannot
+follow), the forearm's misalignment and the elbow's axis fitted by hand: the turn moves across the
+forearm's other joint, to the hand (within 2 deg), and the axis goes.
 """
 
 from __future__ import annotations
@@ -72,6 +75,22 @@ def test_a_turn_on_the_wrong_side_of_the_elbow_moves_to_the_upper_arm(one_thread
     assert arm, [e.summary() for e in s.effects]
     x = math.degrees(arm[0].params["rotation_vector"][0])
     assert abs(x - TURN) < 2.0, arm[0].summary()
+
+
+def test_a_hands_turn_taken_by_the_forearm_moves_across_the_wrist(one_thread):
+    recording, *_ = sensor_physics.generate(SEED, "clean", None, LINKS, duration=8.0, rate=100.0, reference=None)
+    i = recording.links.index("RightHand")
+    R = recording.orientation.copy()
+    R[:, i] = R[:, i] @ rotation_about([0.0, 1.0, 0.0], np.array([math.radians(TURN)]))[0]
+    s = _subject(replace(recording, orientation=R))
+    axis = _wrong_side(s)
+    assert axis is not None, "the wrong side leaves an axis moving with the elbow"
+    assert crossing.other_side(s, axis, LINKS, DEFAULT_GAIN, 10.0, False, 300, lambda _: None)
+    assert not any(isinstance(e, MissingDof) for e in s.effects), [e.summary() for e in s.effects]
+    hand = [e for e in s.effects if e.kind == "misalignment" and e.target == "RightHand"]
+    assert hand, [e.summary() for e in s.effects]
+    y = math.degrees(hand[0].params["rotation_vector"][1])
+    assert abs(y - TURN) < 2.0, hand[0].summary()
 
 
 def test_an_axis_the_motion_has_stays(one_thread):
