@@ -70,3 +70,27 @@ def test_a_mostly_offset_axis_comes_after_a_misalignment_of_its_sides_unless_the
     below = _scored(Misalignment("misalignment", "L3", dict(rotation_vector=[0.0, 0.0, 0.1])), 144.0)
     passing = [axis, elsewhere, drift, below]
     assert preference.offset_first(None, passing) == passing
+
+
+def test_a_drift_of_a_sensor_whose_gyro_bias_is_kept_comes_before_an_axis_near_it(one_thread):
+    """A walk (seed 7150), its right elbow's missing axis scoring above the right upper arm's heading
+    drift, the drift's own gyro silent (the bias fitted first took its word): the axis stays first while
+    no bias of that gyro is kept, and the drift goes before it once one is (a filter that corrects tilt
+    and not heading integrates the bias' vertical part)."""
+    pytest.importorskip("pinocchio")
+    from torchik.pipelines.diagnosis.analysis import DEFAULT_GAIN
+    from torchik.pipelines.diagnosis.result import Step, errors
+    from torchik.pipelines.diagnosis.subject import Subject, analyse_subjects
+
+    rec, *_ = sensor_physics.generate(7150, "clean", None, LINKS, duration=6.0, rate=100.0, reference=None)
+    urdf = human_urdf(48)
+    s = Subject(rec, urdf, load_model("human48"), source=(rec, urdf))
+    analyse_subjects([s], LINKS, DEFAULT_GAIN, False)
+    axis = _scored(s.candidates(("missing_dof",), target="jRightElbow")[0], 907.0)
+    drift = _scored(s.candidates(("heading_drift",), target="RightUpperArm")[0], 754.0)
+    drift.params.update(gyro_shares=False, own_gyro_score=0.0)
+    assert preference.gyro_first(s, [axis, drift], 10.0) == [axis, drift]
+    bias = GyroBias("gyro_bias", "RightUpperArm", dict(bias=[0.02, 0.0, 0.02]))
+    s.steps.append(Step(bias, errors(*s.current), errors(*s.current)))
+    assert preference.gyro_first(s, [axis, drift], 10.0) == [drift, axis]
+    assert "gyro's bias is kept" in drift.notes
