@@ -1,5 +1,6 @@
 """bench: every pipeline of the benchmark runs and tracks, the table's ratios and its one-subject
-line compare the same measured quantity, and bad input is refused."""
+line compare the same measured quantity, and bad input is refused; --dynamics times inverse dynamics
+against pinocchio's rnea after checking they agree, eager and compiled."""
 
 import re
 
@@ -93,3 +94,29 @@ def test_the_tables_ratio_and_the_one_subject_line_compare_the_same_median_step(
     assert ratios(row("torchik batched")) == [f"{64 * 0.280 / 2.0:.2f}"]  # per subject: B over the median step
     # the table says which: the ratio's column is at the median, its legend says so
     assert "vs best peer p50" in lines[0] and any(text.startswith("p50, p99, mean: a step's median") for text in lines)
+
+
+def test_the_dynamics_bench_agrees_with_pinocchio_then_times_both(monkeypatch, tmp_path, capsys):
+    """`torchik bench --dynamics`: a row per model, device and batch, torchik checked against pinocchio
+    first; with --compile the compiled call too (its capture here the function itself: test_capture
+    compiles), its capture's time said apart."""
+    import json
+
+    pytest.importorskip("pinocchio")
+    from torchik.method.dynamics import compiled
+    from torchik.pipelines import bench_dynamics
+
+    monkeypatch.setattr(compiled, "capture", lambda fn, inputs: fn)
+    results = bench_dynamics.run(models=("human48",), batches=(8, 40), compiled=True, progress=False)
+    assert [(r.model, r.device, r.batch) for r in results] == [("human48", "cpu", 8), ("human48", "cpu", 40)]
+    for r in results:
+        assert r.difference <= 1e-9 and r.torchik_ms > 0 and r.pinocchio_loop_ms > 0 and r.compiled_ms > 0
+        assert r.speedup == pytest.approx(r.pinocchio_loop_ms / r.torchik_ms)
+    printed = bench_dynamics.table(results)
+    assert "loop/torchik" in printed and "loop/compiled" in printed and "capture's time" in printed
+    out = tmp_path / "dynamics.json"
+    assert main(["bench", "--dynamics", "--models", "human48", "--batch", "8", "--device", "cpu", "--quiet",
+                 "--json", str(out)]) == 0
+    assert "torchik bench --dynamics" in capsys.readouterr().out
+    rows = json.loads(out.read_text())["dynamics"]
+    assert [(row["model"], row["batch"]) for row in rows] == [("human48", 8)] and rows[0]["speedup"] > 0

@@ -3,7 +3,11 @@
 Properties:
 - they equal pinocchio's recursive Newton-Euler (`pinocchio.rnea`, free flyer, links on fixed joints
   lumped) to 1e-9 N and N m on random states with external wrenches, for Human66, Human48 and iCub,
-  once pinocchio's LOCAL base velocity, acceleration and wrench are turned to MIXED;
+  once pinocchio's LOCAL base velocity, acceleration and wrench are turned to MIXED, both ways of
+  summing over the tree (16 rows: the ancestor matrix; 40: level by level);
+- compiled (`CompiledInverseDynamics`, its capture replaced by the traced function itself), in
+  chunks with the last one padded, the forces are the eager call's; a model whose links' masses
+  are changed (`with_inertial`) moves the weight the base holds by the change;
 - standing still without contacts, the base holds the weight, -M g, at the centre of mass mass.py gives;
 - an external wrench enters as -J^T w, J the link's MIXED Jacobian of the kinematics;
 - a row's forces do not depend on the batch (1 or 64 rows, two ways of composing the tree), nor on
@@ -100,9 +104,10 @@ def pinocchio_forces(path, model: KinematicModel, p, R, s, velocity, acceleratio
     return np.array(out)
 
 
-def test_the_forces_equal_pinocchios_recursive_newton_euler(model_and_path):
+@pytest.mark.parametrize("batch", [16, 40])  # the sums over the tree by the ancestor matrix, then level by level
+def test_the_forces_equal_pinocchios_recursive_newton_euler(model_and_path, batch):
     model, path, links = model_and_path
-    p, R, s, velocity, acceleration, wrenches = random_state(model, 16, seed=1, links=len(links))
+    p, R, s, velocity, acceleration, wrenches = random_state(model, batch, seed=1, links=len(links))
     ours = inverse_dynamics(model, p, R, s, velocity, acceleration, wrenches, links).forces
     theirs = pinocchio_forces(path, model, p, R, s, velocity, acceleration, wrenches, links)
     assert np.abs(theirs).max() > 50.0  # forces of a real motion, not a vanishing one
@@ -250,3 +255,49 @@ def test_a_trajectory_in_chunks_and_with_wrenches_is_each_samples_forces(monkeyp
                                       motion.joint_positions[k], velocity[k], acceleration[k], wrenches[k], links)
             assert (out.forces[k] - sample.forces).abs().max() <= 1e-10
             assert torch.equal(out.joint_powers[k], out.joint_torques[k] * velocity[k, :, 6:])
+
+
+def test_compiled_in_chunks_gives_the_eager_forces(monkeypatch):
+    """The chunks' plumbing (40 rows in chunks of 16, the last padded), with the traced function as the
+    compiled one: TorchInductor's own compilation is test_capture's."""
+    from torchik.method import capture as capture_module
+    from torchik.method.dynamics import compiled as module
+
+    monkeypatch.setattr(module, "capture", lambda fn, inputs: _traced(capture_module, fn))
+    model = load_model("human48")
+    links = WRENCH_LINKS["human48"]
+    p, R, s, velocity, acceleration, wrenches = random_state(model, 40, seed=10, links=len(links))
+    expected = inverse_dynamics(model, p, R, s, velocity, acceleration, wrenches, links).forces
+    fn = module.CompiledInverseDynamics(model, 40, links, chunk=16)
+    assert fn.chunk == 16 and fn.compile_seconds >= 0.0
+    assert (fn(p, R, s, velocity, acceleration, wrenches) - expected).abs().max() <= 1e-10
+    with pytest.raises(InputError, match="compiled for 40 rows"):
+        fn(p[:8], R[:8], s[:8], velocity[:8], acceleration[:8], wrenches[:8])
+    with pytest.raises(InputError, match="wrench_links"):
+        fn(p, R, s, velocity, acceleration)
+
+
+def _traced(capture_module, fn):
+    """fn as the capture traces it (each level's tensors made afresh), not compiled."""
+    def run(*inputs):
+        capture_module._tracing = True
+        try:
+            return fn(*inputs)
+        finally:
+            capture_module._tracing = False
+    return run
+
+
+def test_a_heavier_link_makes_the_base_hold_more_weight():
+    model = load_model("human48")
+    mass = model._tensors.geometry.link_mass[:, 0].clone()
+    mass[model.link_names.index("T8")] += 2.0
+    heavier = model.with_inertial(mass=mass)
+    p, R, s, velocity, _, _ = random_state(model, 4, seed=11)
+    zero = torch.zeros_like(velocity)
+    gap = (inverse_dynamics(heavier, p, R, s, zero, zero).base_wrench
+           - inverse_dynamics(model, p, R, s, zero, zero).base_wrench)
+    assert torch.allclose(gap[:, :3], torch.tensor([0.0, 0.0, 2.0 * 9.81], dtype=torch.float64), atol=1e-10)
+    assert float(total_mass(heavier)) == pytest.approx(float(total_mass(model)) + 2.0)
+    with pytest.raises(InputError, match="mass must be"):
+        model.with_inertial(mass=mass[:-1])

@@ -1,4 +1,5 @@
-"""`torchik bench`: subject-steps per second, batched and per-subject loops."""
+"""`torchik bench`: subject-steps per second, batched and per-subject loops; with --dynamics, inverse
+dynamics against a loop of pinocchio's rnea."""
 
 from __future__ import annotations
 
@@ -22,11 +23,18 @@ def add_parser(subparsers) -> None:
         epilog="examples:\n  torchik bench\n  torchik bench --models human66 --batch 1024 --no-loops\n"
                "  torchik bench --models human66 --batch 128 1024 --no-loops --compile\n"
                "  torchik bench --device cuda --batch 1024 65536 --json gpu.json\n"
-               "  torchik bench --models human66 --batch 1024 --no-loops --profile")
+               "  torchik bench --models human66 --batch 1024 --no-loops --profile\n"
+               "  torchik bench --dynamics --threads 2\n"
+               "  torchik bench --dynamics --models human48 --compile")
     parser.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS)
-    parser.add_argument("--batch", nargs="+", type=int, default=list(bench.BATCHES),
-                        help="batch sizes (default 1 64 1024 8192)")
-    parser.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
+    parser.add_argument("--batch", nargs="+", type=int, default=None,
+                        help="batch sizes (default 1 64 1024 8192; with --dynamics, 1024)")
+    parser.add_argument("--device", default=None,
+                        help="cpu or cuda (default cpu; with --dynamics, the CPU and CUDA where there is one)")
+    parser.add_argument("--dynamics", action="store_true",
+                        help="instead of the tracking step: B configurations' inverse dynamics (tk.inverse_dynamics, "
+                             "and compiled with --compile) against a loop of pinocchio's rnea over the same states, "
+                             "checked to agree first (pipelines/bench_dynamics.py)")
     parser.add_argument("--dtype", default="float64", choices=("float64", "float32"))
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
     parser.add_argument("--no-loops", action="store_true", help="skip the per-subject loops")
@@ -34,7 +42,8 @@ def add_parser(subparsers) -> None:
                         help="also each batch size's step captured and replayed compiled (TrackerSettings(compile=True)), "
                              "after its eager one; the capture (up to minutes the first time on a machine) is not timed; "
                              "where it cannot be made here (no compiler) the bench stops with exit code 2, "
-                             "printing no table and writing no JSON")
+                             "printing no table and writing no JSON; with --dynamics, the inverse dynamics compiled "
+                             "(CompiledInverseDynamics) beside the eager call")
     parser.add_argument("--loop-steps", type=int, default=200, help="steps timed per loop (default 200)")
     parser.add_argument("--seconds", type=positive, default=2.0, help="time per batched measurement, at most (default 2)")
     parser.add_argument("--max-steps", type=int, default=50, help="steps per batched measurement, at most (default 50)")
@@ -49,13 +58,17 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..errors import InputError
 
-    if any(B < 1 for B in args.batch):
+    if args.batch is not None and any(B < 1 for B in args.batch):
         raise InputError(f"batch sizes must be positive, got {args.batch}")
-    if torch.device(args.device).type == "cuda" and not torch.cuda.is_available():
+    if args.device is not None and torch.device(args.device).type == "cuda" and not torch.cuda.is_available():
         raise InputError("--device cuda: no CUDA device is available to torch here")
     if args.threads:
         torch.set_num_threads(args.threads)
     dtype = getattr(torch, args.dtype)
+    if args.dynamics:
+        return _dynamics(args, dtype)
+    args.batch = args.batch or list(bench.BATCHES)
+    args.device = args.device or "cpu"
     results = bench.run(args.models, args.batch, args.device, dtype, not args.no_loops, args.loop_steps, args.seconds,
                   args.max_steps, progress=not args.quiet, compiled=args.compile)
     on_cuda = torch.device(args.device).type == "cuda"
@@ -78,5 +91,28 @@ def run(args: argparse.Namespace) -> int:
         with open(args.json, "w") as f:
             json.dump(dict(settings=info, results=[asdict(r) for r in results], profiles=[asdict(p) for p in profiles]),
                       f, indent=2)
+        print(f"wrote {args.json}")
+    return 0
+
+
+def _dynamics(args: argparse.Namespace, dtype: torch.dtype) -> int:
+    """`torchik bench --dynamics`: the table, and the JSON with --json."""
+    from ..pipelines import bench_dynamics
+
+    devices = [args.device] if args.device else ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    models = [m for m in args.models if m in bench_dynamics.MODELS]
+    results = bench_dynamics.run(models, args.batch or list(bench_dynamics.BATCHES), devices, dtype, args.compile,
+                                 progress=not args.quiet)
+    names = [torch.cuda.get_device_name(0) if d.startswith("cuda") else platform.processor() or platform.machine()
+             for d in devices]
+    print(f"torchik bench --dynamics: {args.dtype}, devices {', '.join(f'{d} ({n})' for d, n in zip(devices, names))}, "
+          f"{torch.get_num_threads()} CPU threads; pinocchio float64 on the CPU")
+    print(bench_dynamics.table(results))
+    if args.json:
+        info = dict(devices=devices, device_names=names, dtype=args.dtype, threads=torch.get_num_threads(),
+                    torch=torch.__version__)
+        rows = [dict(asdict(r), speedup=r.speedup, compiled_speedup=r.compiled_speedup) for r in results]
+        with open(args.json, "w") as f:
+            json.dump(dict(settings=info, dynamics=rows), f, indent=2)
         print(f"wrote {args.json}")
     return 0

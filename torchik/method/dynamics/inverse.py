@@ -38,8 +38,16 @@ Newton-Euler's about its origin, moved to O:
 
 less the external wrenches on its links (moments moved to O). The joints carry the wrenches of the
 bodies below them, tau_j = S_j . sum_f D[f,j] F_f, and the base all of them, tau_B = sum_f F_f.
-The three sums over the tree (velocities, accelerations, forces) are products with D [F,n], dense:
-a human's 67 frames make it a small matrix, and there is no loop over links or tree levels.
+
+The three sums over the tree (velocities, accelerations, forces) are computed one of two ways, the
+same sums (`down_the_tree`, `up_the_tree`). For many configurations on a CPU, one step per tree level
+(Human48's 17, every frame of a level at once): V_f = V_parent(f) + S_f s_dot_f from the base down,
+and the wrenches added into the parents' from the leaves up, which is the least arithmetic. For a
+few, or on a GPU, where each operation's overhead outweighs its arithmetic, as three products with
+D [F,n], dense (a human's 67 frames make it a small matrix). Neither loops over links.
+The bodies' wrenches are computed for all frames at once, their inertia kept in the frame's axes,
+where it is constant: w and w_dot are turned to those axes and I's products back, which is cheaper
+than turning I (`body_wrenches`).
 """
 
 from __future__ import annotations
@@ -49,7 +57,8 @@ from typing import NamedTuple, Sequence
 import torch
 
 from ...errors import InputError
-from ..kinematics.compose import SMALL_BATCH, frame_poses, link_poses, matmul_soa, matvec_soa, world_axes
+from ..capture import tracing
+from ..kinematics.compose import SMALL_BATCH, frame_poses, link_poses
 from ..kinematics.model import KinematicModel
 from ..kinematics.tensors import TreeTensors
 
@@ -93,35 +102,44 @@ def inverse_dynamics(model: KinematicModel, base_position: torch.Tensor, base_ro
     assert p is not None  # positions were asked for
     r = p - base_position.T  # [F,3,B] frame origins from the base's
     nu, nu_dot = velocity.T, acceleration.T  # [6+n,B]
-    axis = world_axes(t, R)  # [n,3,B]
-    S = torch.cat((cross(r.index_select(0, t.joint_frame), axis), axis), 1)  # [n,6,B]
-    s_dot, s_ddot = nu[6:, None], nu_dot[6:, None]  # [n,1,B]
-    V = nu[:6] + _sum_above(t, S * s_dot)  # [F,6,B]
-    A_B = torch.cat((nu_dot[:3] - cross(nu[3:6], nu[:3]), nu_dot[3:6]))
-    A = A_B + _sum_above(t, S * s_ddot + motion_cross(V.index_select(0, t.joint_frame), S) * s_dot)
+    # frames 1..F-1 are the joints' child frames: the joints' rows in frame order
+    joint = t.frame_joint[1:]
+    s_dot, s_ddot = nu[6:].index_select(0, joint)[:, None], nu_dot[6:].index_select(0, joint)[:, None]  # [n,1,B]
+    a = rotate(R[1:], t.joint_axes.index_select(0, joint))  # [n,3,B] each joint's world axis
+    r_x_a = cross(r[1:], a)
+    u = a * s_dot
+    X = torch.cat((r_x_a * s_dot, u), 1)  # S s_dot = (r x u; u), S = (r x a; a)
+    V = down_the_tree(t, X, nu[:6])  # [F,6,B]
+    # S s_ddot + V_f x S s_dot = (r x a s_ddot + w x (r x u) + v x u; a s_ddot + w x u), (v; w) = V_f
+    v, w = V[1:, :3], V[1:, 3:]
+    C = torch.cat((r_x_a * s_ddot + cross(w, X[:, :3]) + cross(v, u), a * s_ddot + cross(w, u)), 1)
+    A_B = torch.cat((nu_dot[:3] + cross(nu[:3], nu[3:6]), nu_dot[3:6]))  # alpha_B = p_ddot_B - omega_B x p_dot_B
+    A = down_the_tree(t, C, A_B)  # [F,6,B]
     g = torch.as_tensor(gravity, dtype=model.dtype, device=model.device).reshape(3, 1)
     wrench = body_wrenches(t, R, r, V, A, g)  # [F,6,B]
     if external_wrenches is not None:
         wrench = wrench - _external(model, R, p, base_position.T, external_wrenches, wrench_links)
-    # each joint carries the bodies below it; the base, all of them
-    below = (t.ancestor.T @ wrench.reshape(t.n_frames, 6 * B)).reshape(n, 6, B)
-    forces = torch.cat((wrench.sum(0), (S * below).sum(1))).T.contiguous()  # [B,6+n]
+    below = up_the_tree(t, wrench)  # [F,6,B] each frame's subtree: the base carries them all
+    torques = ((r_x_a * below[1:, :3]).sum(1) + (a * below[1:, 3:]).sum(1)).index_select(0, t.joint_frame - 1)
+    forces = torch.cat((below[0], torques)).T.contiguous()  # [B,6+n], torques in the model's joint order
     torques = forces[:, 6:]
     return InverseDynamics(forces, forces[:, :6], torques, torques * velocity[:, 6:])
 
 
 def body_wrenches(t: TreeTensors, R, r, V, A, g) -> torch.Tensor:
-    """[F,6,B] the wrench (force; moment about the base's origin) each frame's body needs for its
-    spatial velocity V and acceleration A [F,6,B] under gravity g [3,1]. R [F,3,3,B] frame
-    rotations, r [F,3,B] frame origins from the base's."""
+    """[F,6,B] the wrench (force; moment about the base's origin, world axes) each frame's body needs
+    for its spatial velocity V and acceleration A [F,6,B] under gravity g [3,1]. R [F,3,3,B] frame
+    rotations, r [F,3,B] frame origins from the base's. The inertia stays in the frame's axes, where
+    it is constant: I w = R (I_f (R^T w))."""
     w, w_dot = V[:, 3:], A[:, 3:]
     v_o = V[:, :3] + cross(w, r)  # each frame origin's velocity
     a_o = A[:, :3] + cross(w_dot, r) + cross(w, v_o) - g  # ... its acceleration, less gravity
-    m = t.body_mass[:, None]  # [F,1,S]
-    h = matvec_soa(R, t.body_first_moment)  # [F,3,B] m (c - o), world axes
-    I = matmul_soa(matmul_soa(R, t.body_inertia.expand_as(R)), R.transpose(1, 2))  # about o, world axes
-    f = m * a_o + cross(w_dot, h) + cross(w, cross(w, h))
-    n_o = matvec_soa(I, w_dot) + cross(w, matvec_soa(I, w)) + cross(h, a_o)
+    h = rotate(R, t.body_first_moment)  # [F,3,B] m (c - o), world axes
+    f = t.body_mass[:, None] * a_o + cross(w_dot, h) + cross(w, cross(w, h))
+    Rt = R.transpose(1, 2)
+    w_f = rotate(Rt, w)  # in the frame's axes
+    spin = rotate(t.body_inertia, rotate(Rt, w_dot)) + cross(w_f, rotate(t.body_inertia, w_f))  # I w_dot + w x I w
+    n_o = rotate(R, spin) + cross(h, a_o)
     return torch.cat((f, n_o + cross(r, f)), 1)
 
 
@@ -135,28 +153,74 @@ def _external(model: KinematicModel, R, p, p_B, wrenches: torch.Tensor, links: S
     w = wrenches.permute(1, 2, 0)  # [L,6,B]
     lever = link_poses(R, p, selection, None) - p_B  # [L,3,B] link origins from the base's
     moved = torch.cat((w[:, :3], w[:, 3:] + cross(lever, w[:, :3])), 1)
-    return p.new_zeros(p.shape[0], 6, p.shape[-1]).index_add_(0, selection.anchor, moved)
+    return p.new_zeros(p.shape[0], 6, p.shape[-1]).index_put_((selection.anchor,), moved, accumulate=True)
 
 
-def _sum_above(t: TreeTensors, X: torch.Tensor) -> torch.Tensor:
-    """[F,6,B] each frame's sum of X [n,6,B] over the joints that move it (the ancestor matrix)."""
-    n, _, B = X.shape
-    return (t.ancestor @ X.reshape(n, 6 * B)).reshape(t.n_frames, 6, B)
+def down_the_tree(t: TreeTensors, X: torch.Tensor, base: torch.Tensor) -> torch.Tensor:
+    """[F,6,B] each frame's `base` [6,B] plus the sum of X [F-1,6,B] (frames 1..F-1, each its joint's
+    term) over the joints that move the frame: level by level from the base, or with the ancestor
+    matrix (the module's docstring says when)."""
+    B = X.shape[-1]
+    if not _by_levels(X):
+        # the ancestor matrix's columns are the joints' in the model's order: X's rows taken to it
+        X = X.index_select(0, t.joint_frame - 1)
+        return base + (t.ancestor @ X.reshape(t.n_dof, 6 * B)).reshape(t.n_frames, 6, B)
+    if tracing():  # a tensor per level, concatenated (`capture.tracing`)
+        levels = [base[None]]
+        for start, stop, parents in t.levels:
+            levels.append(levels[-1].index_select(0, parents) + X[start - 1:stop - 1])
+        return torch.cat(levels)
+    out = X.new_empty(t.n_frames, 6, B)
+    out[0] = base
+    above = 0  # the first frame of the level above
+    for start, stop, parents in t.levels:
+        torch.add(out[above:start].index_select(0, parents), X[start - 1:stop - 1], out=out[start:stop])
+        above = start
+    return out
+
+
+def up_the_tree(t: TreeTensors, X: torch.Tensor) -> torch.Tensor:
+    """[F,6,B] each frame's sum of X [F,6,B] over itself and the frames below it (its subtree): level
+    by level from the leaves, or with the ancestor matrix (the base's row the sum of all)."""
+    B = X.shape[-1]
+    if not _by_levels(X):
+        joints = (t.ancestor.T @ X.reshape(t.n_frames, 6 * B)).reshape(t.n_dof, 6, B)  # the model's joint order
+        return torch.cat((X.sum(0, keepdim=True), joints.index_select(0, t.frame_joint[1:])))
+    aboves = [0] + [start for start, _, _ in t.levels[:-1]]  # each level's level above
+    if tracing():  # a tensor per level, concatenated (`capture.tracing`)
+        levels = [X[t.levels[-1][0]:]]
+        for above, (start, _, parents) in zip(reversed(aboves), reversed(t.levels)):
+            levels.append(X[above:start].index_put((parents,), levels[-1], accumulate=True))
+        return torch.cat(levels[::-1])
+    out = X.clone()
+    for above, (start, stop, parents) in zip(reversed(aboves), reversed(t.levels)):
+        # index_put_ rather than index_add_: on two threads torch's index_add_ took 50 ms here, not 0.02
+        out[above:start].index_put_((parents,), out[start:stop], accumulate=True)
+    return out
+
+
+def _by_levels(X: torch.Tensor) -> bool:
+    """Whether the sums over the tree go level by level (many configurations on a CPU) rather than
+    through the ancestor matrix."""
+    return X.device.type == "cpu" and X.shape[-1] > SMALL_BATCH
+
+
+def rotate(M: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """Matrix-vector products, batch last: M [...,3,3,B], v [...,3,B] (broadcast) -> [...,3,B], as
+    three products and sums of [...,3,B] columns."""
+    if max(v.shape[-1], M.shape[-1]) <= SMALL_BATCH:
+        return torch.matmul(M.movedim(-1, -3), v.movedim(-1, -2).unsqueeze(-1)).squeeze(-1).movedim(-2, -1)
+    out = M[..., :, 0, :] * v[..., 0:1, :]  # the broadcast shape: the sums add in place
+    return out.addcmul_(M[..., :, 1, :], v[..., 1:2, :]).addcmul_(M[..., :, 2, :], v[..., 2:3, :])
 
 
 def cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Cross products along dimension -2, batch last: a, b [...,3,B] (broadcast) -> [...,3,B]."""
-    if a.shape[-1] <= SMALL_BATCH:
+    if max(a.shape[-1], b.shape[-1]) <= SMALL_BATCH:
         return torch.linalg.cross(a, b, dim=-2)
     # torch's cross along a middle dimension is slow for large batches: the three components
-    out = torch.empty(torch.broadcast_shapes(a.shape, b.shape), dtype=a.dtype, device=a.device)
+    shape = [max(x, y) for x, y in zip(a.shape, b.shape)] if a.dim() == b.dim() else torch.broadcast_shapes(a.shape, b.shape)
+    out = torch.empty(shape, dtype=a.dtype, device=a.device)
     for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
         torch.mul(a[..., j, :], b[..., k, :], out=out[..., i, :]).addcmul_(a[..., k, :], b[..., j, :], value=-1.0)
     return out
-
-
-def motion_cross(V: torch.Tensor, M: torch.Tensor) -> torch.Tensor:
-    """Spatial motion cross product, linear part first: (v; w) x (u; a) = (w x u + v x a; w x a).
-    V, M [...,6,B] -> [...,6,B]."""
-    v, w, u, a = V[..., :3, :], V[..., 3:, :], M[..., :3, :], M[..., 3:, :]
-    return torch.cat((cross(w, u) + cross(v, a), cross(w, a)), -2)

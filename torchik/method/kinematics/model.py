@@ -7,7 +7,7 @@ and the queries on it: link poses and Jacobians (`forward`), link rotations and 
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -116,6 +116,25 @@ class KinematicModel:
         if self.linear_limits is not None:
             other.linear_limits = self.linear_limits.to(dtype or self.dtype, device or self.device)
         return other
+
+    def with_inertial(self, mass: torch.Tensor | None = None, com: torch.Tensor | None = None,
+                      inertia: torch.Tensor | None = None) -> "KinematicModel":
+        """A copy whose links have other masses [N] (kg), centres of mass [N,3] (m, each in its link's
+        frame) and inertias about them [N,3,3] (kg m^2, link axes), `model.link_names` order; those
+        not given are kept. The model holds one subject."""
+        if self.n_subjects != 1:
+            raise ModelError(f"model {self.name!r} holds {self.n_subjects} subjects: give each its own inertial")
+        g = self._tensors.geometry
+        N = len(self.link_names)
+        for name, x, shape in (("mass", mass, (N,)), ("com", com, (N, 3)), ("inertia", inertia, (N, 3, 3))):
+            if x is not None and tuple(x.shape) != shape:
+                raise InputError(f"with_inertial: {name} must be {list(shape)}, got {list(x.shape)}")
+        as_geometry = lambda x, old: old if x is None else x.to(old)[..., None]  # noqa: E731
+        geometry = replace(g, link_mass=as_geometry(mass, g.link_mass), link_com=as_geometry(com, g.link_com),
+                           link_inertia=as_geometry(inertia, g.link_inertia))
+        out = copy.copy(self)
+        out._derive(geometry, self.dtype, self.device)
+        return out
 
     def same_topology(self, other: "KinematicModel") -> bool:
         """True when both models have the same joints, links, tree and axes (dimensions may differ)."""
