@@ -61,12 +61,17 @@ def _wrong_side(s: Subject) -> MissingDof | None:
     return axis
 
 
-def test_a_turn_on_the_wrong_side_of_the_elbow_moves_to_the_upper_arm(one_thread):
+def _turned_walk(link: str, axis: list[float]) -> Subject:
+    """The clean walk of SEED with `link`'s sensor turned TURN deg about `axis` (link frame), analysed."""
     recording, *_ = sensor_physics.generate(SEED, "clean", None, LINKS, duration=8.0, rate=100.0, reference=None)
-    i = recording.links.index("RightUpperArm")
+    i = recording.links.index(link)
     R = recording.orientation.copy()
-    R[:, i] = R[:, i] @ rotation_about([1.0, 0.0, 0.0], np.array([math.radians(TURN)]))[0]
-    s = _subject(replace(recording, orientation=R))
+    R[:, i] = R[:, i] @ rotation_about(axis, np.array([math.radians(TURN)]))[0]
+    return _subject(replace(recording, orientation=R))
+
+
+def test_a_turn_on_the_wrong_side_of_the_elbow_moves_to_the_upper_arm(one_thread):
+    s = _turned_walk("RightUpperArm", [1.0, 0.0, 0.0])
     axis = _wrong_side(s)
     assert axis is not None, "the wrong side leaves an axis moving with the elbow"
     assert crossing.other_side(s, axis, LINKS, DEFAULT_GAIN, 10.0, False, 300, lambda _: None)
@@ -78,11 +83,7 @@ def test_a_turn_on_the_wrong_side_of_the_elbow_moves_to_the_upper_arm(one_thread
 
 
 def test_a_hands_turn_taken_by_the_forearm_moves_across_the_wrist(one_thread):
-    recording, *_ = sensor_physics.generate(SEED, "clean", None, LINKS, duration=8.0, rate=100.0, reference=None)
-    i = recording.links.index("RightHand")
-    R = recording.orientation.copy()
-    R[:, i] = R[:, i] @ rotation_about([0.0, 1.0, 0.0], np.array([math.radians(TURN)]))[0]
-    s = _subject(replace(recording, orientation=R))
+    s = _turned_walk("RightHand", [0.0, 1.0, 0.0])
     axis = _wrong_side(s)
     assert axis is not None, "the wrong side leaves an axis moving with the elbow"
     assert crossing.other_side(s, axis, LINKS, DEFAULT_GAIN, 10.0, False, 300, lambda _: None)
