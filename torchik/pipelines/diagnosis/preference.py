@@ -109,7 +109,7 @@ def gyro_first(s: Subject, passing: list[Effect], threshold: float) -> list[Effe
     frame of a segment that keeps its attitude). The drift is then what the bias implies, where an
     axis or a limit would be a second cause (an upper arm's drift, which the shoulder follows, shows
     through the elbow only, as an axis moving with the arm's swing)."""
-    biased = {e.target for e in s.effects if e.kind == "gyro_bias"} if s is not None else set()
+    biased = {e.target for e in s.effects if e.kind == "gyro_bias"}
     out = list(passing)
     for d in passing:
         shown = d.params.get("own_gyro_score", 0.0) > threshold
