@@ -45,7 +45,7 @@ from ..errors import InputError, MissingDependencyError, optional
 from ..method import so3
 from ..method.dynamics.inverse import GRAVITY
 from ..method.kinematics import KinematicModel
-from .opensim_table import write_table
+from .opensim_table import read_table, write_table
 
 BASE_COORDINATES = ("base_x", "base_y", "base_z", "base_yaw", "base_pitch", "base_roll")
 GROUND_AXES = np.eye(3)
@@ -294,3 +294,50 @@ def _mobility_order(model: Any, state: Any, names: Sequence[str]) -> list[int]:
         order[index] = k
         coordinates.get(name).setValue(state, 0.0, False)
     return order
+
+
+class ToolResult(NamedTuple):
+    """OpenSim's InverseDynamicsTool on a motion: the generalized forces [T,6+n] (`coordinate_names`
+    order) and the speeds [T,6+n] (m/s, rad/s) of the coordinates as the tool differentiated them."""
+
+    forces: np.ndarray
+    speeds: np.ndarray
+
+
+def inverse_dynamics_tool(model: Any, names: Sequence[str], time: np.ndarray, q: np.ndarray,
+                          loads: str | Path | None, folder: str | Path, cutoff: float = 6.0) -> ToolResult:
+    """OpenSim's InverseDynamicsTool on the coordinates q [T,6+n] (m, rad; columns `names`) at times
+    [T] of `model` (`opensim_model`, without forces), the ground reactions of the ExternalLoads file
+    `loads` (`external_loads`; None: none): the tool low-passes the coordinates at `cutoff` Hz (a
+    Butterworth IIR run both ways after padding the ends; -1: not at all), fits quintic GCV splines
+    and differentiates them. Its files are written in `folder`. The speeds come from the same filter
+    and splines (the tool does not write them)."""
+    osim = require_opensim()
+    folder = Path(folder).resolve()
+    folder.mkdir(parents=True, exist_ok=True)
+    rotational = np.array([name not in BASE_COORDINATES[:3] for name in names])
+    coordinates = folder / "coordinates.mot"
+    write_table(coordinates, time, list(names), np.where(rotational, np.rad2deg(q), q),
+                dict(version="1", inDegrees="yes", DataType="double"), name="Coordinates")
+    tool = osim.InverseDynamicsTool()
+    tool.setModel(model)
+    tool.setCoordinatesFileName(str(coordinates))
+    tool.setLowpassCutoffFrequency(cutoff)
+    if loads is not None:
+        tool.setExternalLoadsFileName(str(Path(loads).resolve()))
+    tool.setStartTime(float(time[0]))
+    tool.setEndTime(float(time[-1]))
+    tool.setResultsDir(str(folder))
+    tool.setOutputGenForceFileName("inverse_dynamics.sto")
+    tool.run()
+    table = read_table(folder / "inverse_dynamics.sto")
+    suffix = lambda name: "_force" if name in BASE_COORDINATES[:3] else "_moment"  # noqa: E731
+    forces = np.column_stack([table.column(name + suffix(name), 1)[:, 0] for name in names])
+    storage = osim.Storage(str(coordinates))
+    if cutoff >= 0:
+        storage.pad(storage.getSize() // 2)
+        storage.lowpassIIR(cutoff)
+    model.getSimbodyEngine().convertDegreesToRadians(storage)
+    splines = osim.GCVSplineSet(5, storage)
+    speeds = np.array([[splines.evaluate(splines.getIndex(name), 1, float(t)) for name in names] for t in table.time])
+    return ToolResult(forces, speeds)
