@@ -32,6 +32,8 @@ EXAMPLES = """examples:
   torchik dynamics --input walk.c3d --map plugin_gait_to_human --calibration static.c3d --model human66 --report dyn/
   torchik dynamics --input walk.c3d --map plugin_gait_to_human --calibration static.c3d --model human48 --report dyn/ \\
       --rrd dyn/walk.rrd                  also a rerun recording: the body and its ground reactions as arrows
+  torchik dynamics --input walk.c3d --map plugin_gait_to_human --calibration static.c3d --report dyn/ --no-fit
+                                          the forces with the model and plates as given: no loop on forces
   torchik dynamics --input walk.npz --model human66 --report dyn/ --no-plates
                                           a recording without plates: the base's residual is the whole
                                           ground reaction
@@ -69,6 +71,10 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--no-plates", action="store_true",
                         help="compute without ground reactions (a recording without plates): the base's residual is "
                              "then the whole ground reaction")
+    parser.add_argument("--no-fit", action="store_true",
+                        help="skip the loop on forces (by default the segment masses, the trunk's centre of mass, "
+                             "the plates' centres of pressure and lag that the base's residual shows off are fitted "
+                             "with held-out significance, applied, and the forces computed again)")
     parser.add_argument("--gain", type=positive, default=TrackerSettings.position_gain,
                         help=f"K of the tracker, 1/s (default {TrackerSettings.position_gain:g})")
     parser.add_argument("--force", action="store_true", help="write into a report folder that already holds a report")
@@ -128,6 +134,12 @@ def run(args: argparse.Namespace) -> int:
     dynamics = motion_dynamics(model, recording, links, settings=settings, cutoff=args.cutoff,
                                wrench_cutoff=args.wrench_cutoff, wrench_at=args.wrench_at, plates=not args.no_plates,
                                progress=not args.quiet)
+    loop = None
+    if not args.no_fit and not args.no_plates:
+        from ..pipelines.dynamics_loop import close_loop
+
+        loop = close_loop(model, recording, dynamics)
+        dynamics = loop.after
     kinetics, agreement = {}, []
     if Path(args.input).suffix.lower() == ".c3d" and dynamics.wrench_links:
         from ..pipelines.plug_in_gait import agreement as agree
@@ -136,7 +148,8 @@ def run(args: argparse.Namespace) -> int:
         kinetics = plug_in_gait_kinetics(args.input)
         agreement = agree(dynamics, kinetics)
     model_name = model.name or args.model
-    paths = write_report(dynamics, out, model_name, None if built is None else built.report(), kinetics, agreement)
+    paths = write_report(dynamics, out, model_name, None if built is None else built.report(), kinetics, agreement,
+                         loop)
     if args.rrd:
         paths["rrd"] = write_rrd(dynamics, model, links, args.rrd, model_urdf(args.model, subject))
     if not args.quiet:
@@ -146,10 +159,12 @@ def run(args: argparse.Namespace) -> int:
         stances = ", ".join(f"{s['link']} {s['start_frame']}-{s['stop_frame'] - 1}" for s in numbers["stance"])
         print(f"    on the plates (frames): {stances or 'none'}")
         covered = numbers["residual_force_per_weight"]["covered"]
-        if covered:
+        if covered and loop is None:
             print(f"    residual where the plates carry every foot on the ground ({numbers['covered_loaded_frames']} "
                   f"frames): force rms {100 * covered['rms']:.1f} % of body weight, moment rms "
                   f"{numbers['residual_moment_n_m_per_kg']['covered']['rms']:.3f} N m/kg")
+        for line in [] if loop is None else loop.lines():
+            print(f"    {line}")
         held = dynamics.notes.get("at_limits") or {}
         if held:
             print(f"    joints held at a limit (frames): {', '.join(f'{j} {n}' for j, n in held.items())}: the motion "

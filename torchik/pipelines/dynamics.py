@@ -32,7 +32,7 @@ moment, extensor (plantarflexor) positive, which Plug-in Gait uses.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal, Sequence
 
 import numpy as np
@@ -47,6 +47,7 @@ from ..method.kinematics.mass import total_mass
 from ..method.settings import TrackerSettings
 from ..method.state import Trajectory
 from .contacts import contact_mask
+from .dynamics_effects import shift
 from .track import SETTLE, track_recording
 
 SIDES = ("Right", "Left")
@@ -68,7 +69,8 @@ class MotionDynamics:
     ground reactions, wrenches [T,L,6] theirs as measured (force N; moment N m about the world origin,
     world frame; NaN where one plate carried two feet), stance [T,L] where a plate's contact is on the
     link; covered [T] where every foot on the ground stands on a plate (module docstring); mass (kg,
-    the model's); trajectory the tracked one; tracking its report; notes: how it was computed."""
+    the model's); trajectory the tracked one, its velocity on the frames (`centred`); tracking its
+    report; notes: how it was computed."""
 
     time: np.ndarray
     joint_names: tuple[str, ...]
@@ -159,29 +161,57 @@ def motion_dynamics(model: KinematicModel, recording: Recording, links: Sequence
     if recording.position is None:
         wrench_at = "model"  # no segment origin measured: the model's is the only one
     trajectory, report = track_recording(model, recording, links, settings, progress=progress, settle=settle)
+    trajectory = centred(trajectory)
     T = len(trajectory.time)
     wrenches = np.zeros((T, 0, 6)) if measured is None else measured[:T]
     stance = np.abs(np.nan_to_num(wrenches, nan=1.0)).sum(-1) > 0
-    about = None
-    if wrench_links:
-        about = _wrench_origins(model, recording, trajectory, wrench_links, wrench_at)
-    rate = 1.0 / float(np.median(np.diff(recording.time))) if T > 1 else 1.0
-    forces = trajectory_dynamics(model, trajectory, _about(wrenches, about, model, rate, wrench_cutoff),
-                                 wrench_links or None, cutoff=cutoff)
-    velocity = low_pass(trajectory.velocity, rate, cutoff) if T > 2 else trajectory.velocity
-    host = lambda x: x[:, 0].detach().cpu().double().numpy()  # noqa: E731
     notes = dict(cutoff_hz=cutoff, wrench_cutoff_hz=wrench_cutoff, wrench_at=wrench_at if wrench_links else None,
                  at_limits=at_limits(model, trajectory),
                  plates=recording.meta.get("force_plates"), events=recording.meta.get("events", []), source=source,
                  link_map=(recording.meta.get("link_map") or {}).get("name"))
+    empty = np.zeros((T, 0))
     result = MotionDynamics(time=trajectory.time.detach().cpu().double().numpy(), joint_names=tuple(model.joint_names),
-                            joint_positions=host(trajectory.joint_positions), joint_velocities=host(velocity[..., 6:]),
-                            joint_torques=host(forces.joint_torques), joint_powers=host(forces.joint_powers),
-                            base_wrench=host(forces.base_wrench), wrench_links=wrench_links, wrenches=wrenches,
-                            stance=stance, covered=np.zeros(T, dtype=bool), mass=float(total_mass(model)[0]),
-                            trajectory=trajectory, tracking=report, notes=notes)
+                            joint_positions=empty, joint_velocities=empty, joint_torques=empty, joint_powers=empty,
+                            base_wrench=empty, wrench_links=wrench_links, wrenches=wrenches, stance=stance,
+                            covered=np.zeros(T, dtype=bool), mass=0.0, trajectory=trajectory, tracking=report,
+                            notes=notes)
+    result = with_forces(result, model, recording, wrenches)
     result.covered = covered_frames(result, model)
     return result
+
+
+def centred(trajectory: Trajectory) -> Trajectory:
+    """The trajectory with its velocity [T,1,6+n] read half a step later: the tracker's velocity at a
+    frame is its step's, the mean over the step that ends there (scheme.py), the velocity half a step
+    before the frame; its derivative, the acceleration, would be half a step late on the positions
+    and on the plates (5 ms at 100 Hz, which the loop on forces then finds as the plates' lag)."""
+    T = len(trajectory.time)
+    if T < 3:
+        return trajectory
+    rate = 1.0 / float(trajectory.time.diff().double().mean())
+    return replace(trajectory, velocity=shift(trajectory.velocity, rate, 0.5 / rate))
+
+
+def with_forces(dynamics: MotionDynamics, model: KinematicModel, recording: Recording,
+                wrenches: np.ndarray) -> MotionDynamics:
+    """The forces of `dynamics`' tracked motion with `model`'s masses and the ground reactions
+    `wrenches` [T,L,6] on its `wrench_links` (force N, moment N m about the world origin), computed as
+    its notes say (cutoffs, the point the moments are taken about); its stance and covered frames kept.
+    What `motion_dynamics` computes once tracked, and the loop on forces again with the masses and the
+    plates corrected (`dynamics_loop.py`)."""
+    trajectory, notes = dynamics.trajectory, dynamics.notes
+    T = len(trajectory.time)
+    about = None
+    if dynamics.wrench_links:
+        about = _wrench_origins(model, recording, trajectory, dynamics.wrench_links, notes["wrench_at"])
+    rate = 1.0 / float(np.median(np.diff(recording.time))) if T > 1 else 1.0
+    forces = trajectory_dynamics(model, trajectory, _about(wrenches, about, model, rate, notes["wrench_cutoff_hz"]),
+                                 dynamics.wrench_links or None, cutoff=notes["cutoff_hz"])
+    velocity = low_pass(trajectory.velocity, rate, notes["cutoff_hz"]) if T > 2 else trajectory.velocity
+    host = lambda x: x[:, 0].detach().cpu().double().numpy()  # noqa: E731
+    return replace(dynamics, joint_positions=host(trajectory.joint_positions), joint_velocities=host(velocity[..., 6:]),
+                   joint_torques=host(forces.joint_torques), joint_powers=host(forces.joint_powers),
+                   base_wrench=host(forces.base_wrench), wrenches=wrenches, mass=float(total_mass(model)[0]))
 
 
 def at_limits(model: KinematicModel, trajectory: Trajectory, within: float = AT_LIMIT) -> dict[str, int]:

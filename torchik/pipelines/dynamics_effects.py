@@ -4,7 +4,8 @@ in the residual's linear model r(theta) = r + G theta, and how a fitted one is a
 The residual r = (the model's base wrench without contacts) - (the plates' wrench), both about the
 base's origin in world axes, [T,6]:
 
-- a segment's mass off by dm (OpenSim's residual reduction adjusts the trunk's): dm spread over the
+- a segment's mass off by dm (OpenSim's residual reduction adjusts the trunk's; the segment "body",
+  every link with a mass, is the body mass stated wrong, or the plates' gain off): dm spread over the
   segment's links in proportion to their masses, at their centres of mass, inertia about the centres
   kept, adds dm G_m, G_m [T,6] the base wrench (`trajectory_dynamics`) of a model whose only masses
   are those links' shares of one kilogram, as points: the base wrench is linear in each body's mass,
@@ -42,6 +43,7 @@ HUMAN_SEGMENTS = {
     "arms": tuple(f"{side}{part}" for side in ("Right", "Left") for part in ("Shoulder", "UpperArm", "ForeArm", "Hand")),
     "legs": tuple(f"{side}{part}" for side in ("Right", "Left") for part in ("UpperLeg", "LowerLeg", "Foot", "Toe")),
 }
+BODY = "body"  # the segment of every link with a mass: the body mass off as a whole
 
 
 @dataclass(frozen=True)
@@ -49,7 +51,8 @@ class Effect:
     """A candidate: `kind` mass, com, cop or lag; `labels` its parameters' units; `columns` its
     columns of G [T,6,k] as a function of the plates read at the fitted lag [T,P,6] (None for the lag,
     whose column the fit takes from the plates' derivative); `segment` its links (mass, com), `plate`
-    its plate (cop), `plane` the plate's two in-plane directions."""
+    its plate (cop), `plane` the plate's two in-plane directions; `limit` the plausible size when it is
+    not its kind's (`dynamics_fit.LIMITS`)."""
 
     name: str
     kind: str
@@ -58,10 +61,12 @@ class Effect:
     segment: tuple[str, ...] = ()
     plate: int = -1
     plane: tuple[torch.Tensor, ...] = ()
+    limit: float | None = None
 
 
 def segments(model: KinematicModel, given: dict[str, Sequence[str]] | None) -> dict[str, tuple[str, ...]]:
-    """name -> the links of each segment that have a mass (`given`, or HUMAN_SEGMENTS on this model)."""
+    """name -> the links of each segment that have a mass (`given`, or HUMAN_SEGMENTS on this model and
+    BODY, every link with a mass)."""
     names = set(model.link_names)
     mass = _masses(model)
     out = {}
@@ -72,6 +77,8 @@ def segments(model: KinematicModel, given: dict[str, Sequence[str]] | None) -> d
         massive = tuple(link for link in links if link in names and mass[link] > 0.0)
         if massive:
             out[name] = massive
+    if given is None and out:
+        out[BODY] = tuple(link for link in model.link_names if mass[link] > 0.0)
     if not out:
         raise InputError(f"model {model.name!r}: no segment with a mass; give segments={{name: links}}")
     return out
@@ -82,11 +89,13 @@ def segment_mass(model: KinematicModel, links: Sequence[str]) -> float:
     return sum(mass[link] for link in links)
 
 
-def mass_effect(model: KinematicModel, trajectory: Sampled, name: str, links: tuple[str, ...], cutoff: float) -> Effect:
-    """dm (kg) on the segment, G_m: the base wrench of one kilogram spread over `links` as their masses are."""
+def mass_effect(model: KinematicModel, trajectory: Sampled, name: str, links: tuple[str, ...], cutoff: float,
+                limit: float | None = None) -> Effect:
+    """dm (kg) on the segment, G_m: the base wrench of one kilogram spread over `links` as their masses are;
+    `limit` the plausible fraction of the segment's mass when not the kind's."""
     m, c = _inertial(model, links)
     G = trajectory_dynamics(_point_masses(model, links, m / m.sum(), c), trajectory, cutoff=cutoff).base_wrench
-    return Effect(f"{name} mass", "mass", ("kg",), _constant(G[:, 0, :, None]), links)
+    return Effect(f"{name} mass", "mass", ("kg",), _constant(G[:, 0, :, None]), links, limit=limit)
 
 
 def com_effect(model: KinematicModel, trajectory: Sampled, name: str, links: tuple[str, ...], cutoff: float) -> Effect:
@@ -98,8 +107,9 @@ def com_effect(model: KinematicModel, trajectory: Sampled, name: str, links: tup
                   _constant(((moved[0] - moved[1]) / (2 * EPS))[..., None]), links)
 
 
-def cop_effect(plate: int, normal: torch.Tensor) -> Effect:
-    """d (m, two in-plane components) of plate `plate` (from 0), columns (0; e_i x f_p)."""
+def cop_effect(plate: int, normal: torch.Tensor, name: str | None = None) -> Effect:
+    """d (m, two in-plane components) of plate `plate` (from 0; `name` default "plate <plate + 1>"),
+    columns (0; e_i x f_p)."""
     plane = _plane(normal)
 
     def columns(shifted: torch.Tensor) -> torch.Tensor:
@@ -107,7 +117,8 @@ def cop_effect(plate: int, normal: torch.Tensor) -> Effect:
         return torch.stack([torch.cat((torch.zeros_like(force), torch.linalg.cross(e.expand_as(force), force)), -1)
                             for e in plane], -1)
 
-    return Effect(f"plate {plate + 1} centre of pressure", "cop", ("m", "m"), columns, plate=plate, plane=plane)
+    return Effect(f"{name or f'plate {plate + 1}'} centre of pressure", "cop", ("m", "m"), columns, plate=plate,
+                  plane=plane)
 
 
 def lag_effect() -> Effect:
@@ -150,7 +161,10 @@ def corrected_plates(plates: torch.Tensor, fitted: Sequence[tuple[Effect, torch.
             d = float(value[0]) * e.plane[0] + float(value[1]) * e.plane[1]
             force = out[:, e.plate, :3]
             out[:, e.plate, 3:] -= torch.linalg.cross(d.expand_as(force), force)
-    return shift(out, rate, lag) if lag else out
+    if not lag:
+        return out
+    unknown = out.isnan()  # a plate whose share is unknown there: shifted as zero, unknown again after
+    return shift(out.nan_to_num(0.0), rate, lag).masked_fill(unknown, torch.nan)
 
 
 def _masses(model: KinematicModel) -> dict[str, float]:

@@ -15,8 +15,9 @@ fitted, with those already added, on one half of the time and scored on the othe
 the variance and autocorrelation time of what is left, k the effect's parameters. The best one is
 added when its score exceeds SIGNIFICANT, it explains more than FLOOR (a residual below it is
 explained already), the two halves' estimates agree (within AGREEMENT of the larger), and its value
-on the whole time is plausible (LIMITS: a mass off by more than a quarter of the segment's, a centre
-of mass or of pressure by more than 5 cm, a lag of more than 0.1 s is a fault of another kind); one
+on the whole time is plausible (LIMITS: a mass off by more than a quarter of the segment's, the whole
+body's by more than a tenth, a centre of mass or of pressure by more than 5 cm, a lag of more than
+0.1 s is a fault of another kind); one
 that is not is refused, with the reason, and the next one tried. What each effect explains is the
 residual on the whole time before and after it was added; the report gives the residual's RMS as a
 force in body weights and a moment in N m per kilogram of body mass.
@@ -44,6 +45,8 @@ SIGNIFICANT = 10.0  # held-out score (2 log of the approximate Bayes factor), Ka
 FLOOR = 1e-3  # weighted residual RMS (body weights): what an effect must explain at least
 AGREEMENT = 0.5  # the two halves' estimates differ by at most this fraction of the larger
 LIMITS = {"mass": 0.25, "com": 0.05, "cop": 0.05, "lag": 0.1}  # fraction of the segment's mass, m, m, s
+BODY_LIMIT = 0.1  # the whole body's mass: a stated body mass off by more is another subject's
+MIN_SAMPLES = 20  # samples to fit on: two halves of ten
 LEVER = 1.0  # m: a moment of M g LEVER weighs as a force of M g
 
 
@@ -173,7 +176,9 @@ class _Residuals:
 
 def fit_dynamics(model: KinematicModel, trajectory: Sampled, plate_wrenches: torch.Tensor,
                  plate_normals: torch.Tensor | None = None, segments: dict[str, Sequence[str]] | None = None,
-                 centre_of_mass: Sequence[str] = ("trunk",), cutoff: float = CUTOFF) -> DynamicsFit:
+                 centre_of_mass: Sequence[str] = ("trunk",), cutoff: float = CUTOFF,
+                 frames: torch.Tensor | None = None, plate_names: Sequence[str] | None = None,
+                 filter_plates: bool = True) -> DynamicsFit:
     """What explains the base's residual wrench along `trajectory` (one subject, [T,1,...], a constant
     rate) with the plates' `plate_wrenches` [T,P,6] (force N; moment N m about the world origin; world
     axes; NaN where unknown: those samples are left out), as the module's docstring says.
@@ -181,7 +186,11 @@ def fit_dynamics(model: KinematicModel, trajectory: Sampled, plate_wrenches: tor
     plate_normals [P,3] each plate's upward normal (default the world's z); segments: name -> the links
     whose mass may be off together (default `dynamics_effects.HUMAN_SEGMENTS`, their links with a
     mass); centre_of_mass: the segments whose centre of mass may be off along them; cutoff: the
-    low-pass (Hz) of the motion's derivative (`trajectory_dynamics`) and of the plates."""
+    low-pass (Hz) of the motion's derivative (`trajectory_dynamics`) and, with filter_plates, of the
+    plates (without, they are fitted as given: the residual an inverse dynamics with them has); frames [T]
+    (bool): the samples to fit on (default all; a walk's where the plates carry every foot on the
+    ground: elsewhere the residual holds the reaction of a foot no plate sees); plate_names [P] what the
+    effects call the plates (default "plate 1", ...)."""
     T, B = trajectory.velocity.shape[:2]
     if B != 1:
         raise InputError(f"fit_dynamics fits one subject: the trajectory has {B}")
@@ -196,17 +205,28 @@ def fit_dynamics(model: KinematicModel, trajectory: Sampled, plate_wrenches: tor
     normals = torch.tensor([[0.0, 0.0, 1.0]] * P, dtype=dtype) if plate_normals is None else plate_normals.to(dtype)
 
     free = trajectory_dynamics(model, trajectory, cutoff=cutoff).base_wrench[:, 0]  # [T,6] no contact
-    plates = low_pass(torch.nan_to_num(plate_wrenches.to(dtype)), rate, cutoff)
+    plates = torch.nan_to_num(plate_wrenches.to(dtype))
+    if filter_plates:
+        plates = low_pass(plates, rate, cutoff)
     residuals = _Residuals(free, plates, trajectory.base_position[:, 0].to(dtype), rate, scale)
-    pool = [effects.mass_effect(model, trajectory, name, links, cutoff) for name, links in groups.items()]
+    pool = [effects.mass_effect(model, trajectory, name, links, cutoff, BODY_LIMIT if name == effects.BODY else None)
+            for name, links in groups.items()]
     pool += [effects.com_effect(model, trajectory, name, groups[name], cutoff) for name in centre_of_mass
              if name in groups]
-    pool += [effects.cop_effect(k, normals[k]) for k in range(P)] + ([effects.lag_effect()] if P else [])
+    pool += [effects.cop_effect(k, normals[k], None if plate_names is None else plate_names[k]) for k in range(P)]
+    pool += [effects.lag_effect()] if P else []
 
     edge = min(T // 4, int(math.ceil(2 * rate / cutoff)))  # the filter's ends are less exact
     rows = torch.isfinite(plate_wrenches).all(-1).all(-1)
+    if frames is not None:
+        if frames.shape != (T,):
+            raise InputError(f"frames must be [T={T}], got {list(frames.shape)}")
+        rows &= frames.to(torch.bool)
     rows[:edge] = rows[T - edge:] = False
     index = rows.nonzero()[:, 0]
+    if len(index) < MIN_SAMPLES:
+        raise InputError(f"{len(index)} samples to fit on (finite plates, within `frames`, off the filter's ends): "
+                         f"at least {MIN_SAMPLES} are needed")
     halves = (index[:len(index) // 2], index[len(index) // 2:])
     folds = (halves, halves[::-1])
 
@@ -230,7 +250,7 @@ def fit_dynamics(model: KinematicModel, trajectory: Sampled, plate_wrenches: tor
 
     def implausible(e: Effect, value: torch.Tensor) -> str:
         """Why the effect's value is implausible ('' when it is not)."""
-        limit = LIMITS[e.kind]
+        limit = LIMITS[e.kind] if e.limit is None else e.limit
         if e.kind == "mass":
             share = float(value[0]) / effects.segment_mass(model, e.segment)
             return "" if abs(share) <= limit else \

@@ -14,6 +14,9 @@
                                            Plug-in Gait's own where the file holds them
     residual.png                           the residual force and moment over time, the plates'
                                            stances shaded, the frames a foot stands off them greyed
+    residual_loop.png                      with the loop on forces (`dynamics_loop.py`): the residual
+                                           force over time before and after it, the frames fitted
+                                           (the plates carry every foot) shaded
     summary.json, report.md                the numbers and the report
 
 and, with `write_rrd`, a rerun recording of the tracked body with the ground reactions as arrows.
@@ -25,29 +28,33 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from ..io.files import replacing
 from ..io.foot_contacts import runs
 from ..io.opensim_table import write_table
+from ..method.dynamics.inverse import GRAVITY
 from ..method.kinematics import KinematicModel
 from .dynamics import JOINTS, SIDES, MotionDynamics, gait_cycles, stance_phases, summary
-from .plotting import pyplot
+from .plotting import figure, pyplot
 from .plug_in_gait import Agreement, PlugInGaitKinetics
+
+if TYPE_CHECKING:
+    from .dynamics_loop import ClosedLoop
 
 SIDE_COLORS = {"Right": "tab:green", "Left": "tab:red"}  # Vicon's: right green, left red
 OUTPUTS = ("joint_torques.csv", "joint_torques.sto", "joint_powers.csv", "joint_powers.sto", "residual.csv",
-           "ground_reactions.csv", "sagittal.png", "residual.png", "summary.json", "report.md")
+           "ground_reactions.csv", "sagittal.png", "residual.png", "residual_loop.png", "summary.json", "report.md")
 
 
 def write_report(dynamics: MotionDynamics, out: str | Path, model_name: str, subject: dict | None = None,
                  kinetics: dict[tuple[str, str], PlugInGaitKinetics] | None = None,
-                 agreement: Sequence[Agreement] = ()) -> dict[str, Path]:
+                 agreement: Sequence[Agreement] = (), loop: ClosedLoop | None = None) -> dict[str, Path]:
     """The files of the module docstring in folder `out` (made if missing); subject: where the body's
-    numbers came from; kinetics, agreement: Plug-in Gait's own and how torchik's agree with them.
-    Returns the paths by file name."""
+    numbers came from; kinetics, agreement: Plug-in Gait's own and how torchik's agree with them; loop:
+    the loop on forces, whose `after` is `dynamics`. Returns the paths by file name."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     d, paths = dynamics, {}
@@ -71,13 +78,15 @@ def write_report(dynamics: MotionDynamics, out: str | Path, model_name: str, sub
     if human:
         paths["sagittal.png"] = sagittal_figure(d, out / "sagittal.png", kinetics or {})
     paths["residual.png"] = residual_figure(d, out / "residual.png")
+    if loop is not None:
+        paths["residual_loop.png"] = loop_figure(loop, out / "residual_loop.png")
     numbers = dict(summary(d), model=model_name, subject=subject, tracking=_tracking(d.tracking), notes=d.notes,
-                   plug_in_gait=[a.to_json() for a in agreement])
+                   plug_in_gait=[a.to_json() for a in agreement], loop=None if loop is None else loop.to_json())
     with replacing(out / "summary.json") as part:
         Path(part).write_text(json.dumps(numbers, indent=2, default=_plain) + "\n")
     paths["summary.json"] = out / "summary.json"
     with replacing(out / "report.md") as part:
-        Path(part).write_text(markdown(d, numbers, model_name, subject, agreement, human))
+        Path(part).write_text(markdown(d, numbers, model_name, subject, agreement, human, loop))
     paths["report.md"] = out / "report.md"
     return paths
 
@@ -188,12 +197,72 @@ def residual_figure(d: MotionDynamics, path: Path) -> Path:
     return path
 
 
+def loop_figure(loop: ClosedLoop, path: Path, title: str = "") -> Path:
+    """The residual force (per body weight given) over time before and after the loop on forces, the
+    frames fitted and compared shaded; `title` above it (default: the residuals' rms)."""
+    fig = figure((10, 3.2))
+    ax = fig.add_subplot(1, 1, 1)
+    t, weight = loop.before.time, loop.mass * float(np.linalg.norm(GRAVITY))
+    for start, stop in runs(loop.frames):
+        ax.axvspan(t[start], t[min(stop, len(t) - 1)], color="tab:blue", alpha=0.12, lw=0)
+    for d, color, label in ((loop.before, "grey", "before"), (loop.after, "black", "after")):
+        ax.plot(t, np.linalg.norm(d.base_wrench[:, :3], axis=-1) / weight, color=color, lw=1.1, label=label)
+    ax.axhline(0.1, color="tab:red", lw=0.7, ls=":", label="10 % of body weight")
+    b, a = loop.residual(loop.before), loop.residual(loop.after)
+    top = max(b.force_max, a.force_max, 0.1)
+    if math.isfinite(top):  # off the shaded frames a foot's reaction no plate saw: up to the whole weight
+        ax.set_ylim(0.0, 1.3 * top)
+    ax.set_title(title or f"base residual force: rms over the shaded frames {100 * b.force_rms:.1f} -> "
+                          f"{100 * a.force_rms:.1f} % of body weight; shaded: the plates carry every foot", fontsize=9)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("force / body weight")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper right")
+    fig.tight_layout()
+    with replacing(path) as part:
+        fig.savefig(part, dpi=80, format="png")
+    return path
+
+
+def _loop_markdown(loop: ClosedLoop) -> list[str]:
+    """report.md's section on the loop on forces."""
+    b, a = loop.residual(loop.before), loop.residual(loop.after)
+    lines = ["## The loop on forces", "",
+             f"What the base's residual says the model or the plates lack (`dynamics_fit.py`: segment masses, the "
+             f"trunk's centre of mass, each plate's centre of pressure, the plates' lag; fitted on one half of the "
+             f"{int(loop.frames.sum())} frames where the plates carry every foot and scored on the other), applied, and "
+             f"the forces computed again. Residual over those frames, in the body weight and mass given "
+             f"({loop.mass:.1f} kg):", "",
+             "| | force rms (% of weight) | force max | moment rms (N m/kg) | moment max |", "|---|---:|---:|---:|---:|",
+             f"| before | {100 * b.force_rms:.1f} | {100 * b.force_max:.1f} | {b.moment_rms:.3f} | {b.moment_max:.3f} |",
+             f"| after | {100 * a.force_rms:.1f} | {100 * a.force_max:.1f} | {a.moment_rms:.3f} | {a.moment_max:.3f} |", ""]
+    if loop.fit is None:
+        return lines + [f"Not fitted: {loop.reason}.", ""]
+    if loop.fit.effects:
+        lines += ["Kept (each significant on held-out halves, the halves agreeing, its size plausible); the joint "
+                  "torques and powers of this report are computed with them:", "",
+                  "| effect | value | held-out score | residual when added (fitted frames, plates low-passed as the "
+                  "motion) |", "|---|---|---:|---|"]
+        for e in loop.fit.effects:
+            value = ", ".join(f"{v:+.4g} {u}" for v, u in zip(e.value, e.labels))
+            if e.relative is not None:
+                value += f" ({100 * e.relative:+.1f} %)"
+            lines += [f"| {e.name} | {value} | {e.score:.0f} | {100 * e.before.force:.1f} -> {100 * e.after.force:.1f} "
+                      f"% of weight |"]
+    else:
+        lines += ["Nothing kept: no effect explains the residual significantly on held-out frames."]
+    if loop.fit.refused:
+        lines += ["", "Refused (significant, but implausible or unstable):", ""]
+        lines += [f"- {r.name} ({', '.join(f'{v:+.4g}' for v in r.value)}): {r.reason}" for r in loop.fit.refused]
+    return lines + ["", "![residual before and after the loop](residual_loop.png)", ""]
+
+
 def _num(x, digits: int = 3) -> str:
     return "-" if x is None or not math.isfinite(x) else f"{x:.{digits}g}"
 
 
 def markdown(d: MotionDynamics, numbers: dict, model_name: str, subject: dict | None,
-             agreement: Sequence[Agreement], human: bool) -> str:
+             agreement: Sequence[Agreement], human: bool, loop: ClosedLoop | None = None) -> str:
     """report.md: the subject, the tracking, the ground reactions, the residual, the sagittal peaks, the
     agreement with Plug-in Gait, the files and the conventions."""
     notes, lines = d.notes, []
@@ -231,6 +300,8 @@ def markdown(d: MotionDynamics, numbers: dict, model_name: str, subject: dict | 
                                   + (f" shared by {', '.join(c['shared'])}" if c.get("shared") else "") for c in lost)]
         lines += [""]
     lines += ["## Residual", ""]
+    if loop is not None and loop.fit is not None and loop.fit.effects:
+        lines += ["With the corrections the loop on forces kept (its section below gives the residual before them).", ""]
     f, mo = numbers["residual_force_per_weight"], numbers["residual_moment_n_m_per_kg"]
     if f["covered"]:
         lines += [f"Over the {numbers['covered_loaded_frames']} frames where the plates carry every foot on the ground: "
@@ -245,6 +316,8 @@ def markdown(d: MotionDynamics, numbers: dict, model_name: str, subject: dict | 
     if numbers["unknown_frames"]:
         lines += [f"{numbers['unknown_frames']} frames have an unknown residual (a plate two feet stood on).", ""]
     lines += ["![residual](residual.png)", ""]
+    if loop is not None:
+        lines += _loop_markdown(loop)
     if human:
         lines += ["## Sagittal plane", "", "Peaks over each side's stance on a plate (moment N m/kg, extensor or "
                   "plantarflexor positive; power W/kg, generated positive):", "",
