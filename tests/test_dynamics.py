@@ -26,7 +26,7 @@ import torch
 from conftest import REPO
 
 from torchik import InputError, KinematicModel, so3
-from torchik.method.dynamics import inverse_dynamics, low_pass, trajectory_dynamics
+from torchik.method.dynamics import inverse_dynamics, low_pass, reach, trajectory_dynamics
 from torchik.method.kinematics.mass import centre_of_mass, total_mass
 from torchik.method.models import HumanSubject, load_model
 from torchik.synthetic.motion import periodic_motion
@@ -224,6 +224,36 @@ def test_the_low_pass_keeps_a_slow_sine_and_removes_a_fast_one():
     filtered = low_pass((slow + 0.3 * torch.sin(2 * math.pi * 40.0 * t))[:, None], 100.0, 6.0)[:, 0]
     gain = 1 / (1 + (1 / 6.0) ** 4)  # at 1 Hz; at 40 Hz, 5e-4
     assert (filtered - gain * slow)[50:-50].abs().max() <= 2e-4
+
+
+def test_the_low_pass_reach_holds_nine_tenths_of_its_weight():
+    """reach(rate, cutoff): the samples either side holding all but 10 % of |impulse response|; a lower
+    cut-off reaches farther, a higher rate in more samples."""
+    k = reach(100.0, 6.0)
+    impulse = torch.zeros(201, dtype=torch.float64)
+    impulse[100] = 1.0
+    weight = low_pass(impulse, 100.0, 6.0).abs()
+    inside = lambda k: float(weight[100 - k:101 + k].sum() / weight.sum())  # noqa: E731
+    assert k == 6 and inside(k) >= 0.9 > inside(k - 1)
+    assert reach(100.0, 3.0) > k and reach(1000.0, 6.0) > 9 * k
+
+
+def test_the_residuals_frames_keep_clear_of_the_uncovered_by_the_reach():
+    """residual_frames: the covered frames with a plate loaded, less those within the reach of one the
+    plates do not cover or do not know (NaN)."""
+    from types import SimpleNamespace
+
+    from torchik.pipelines.dynamics import residual_frames
+
+    T = 100
+    covered = np.zeros(T, dtype=bool)
+    covered[20:80] = True
+    wrenches = np.ones((T, 2, 6))
+    wrenches[50] = np.nan  # a plate two feet shared
+    d = SimpleNamespace(time=np.arange(T) / 100.0, covered=covered, wrenches=wrenches, wrench_links=("R", "L"),
+                        stance=np.ones((T, 2), dtype=bool), notes=dict(cutoff_hz=6.0))
+    frames = residual_frames(d)
+    assert np.flatnonzero(frames).tolist() == list(range(26, 44)) + list(range(57, 74))
 
 
 def test_a_trajectory_at_an_uneven_rate_is_refused():

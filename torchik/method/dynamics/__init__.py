@@ -4,7 +4,7 @@ from a filtered derivative (`trajectory.py`)."""
 
 from .compiled import CompiledInverseDynamics
 from .inverse import GRAVITY, InverseDynamics, inverse_dynamics
-from .trajectory import CUTOFF, low_pass, trajectory_dynamics
+from .trajectory import CUTOFF, low_pass, reach, trajectory_dynamics
 
-__all__ = ["GRAVITY", "CUTOFF", "InverseDynamics", "inverse_dynamics", "trajectory_dynamics", "low_pass",
+__all__ = ["GRAVITY", "CUTOFF", "InverseDynamics", "inverse_dynamics", "trajectory_dynamics", "low_pass", "reach",
            "CompiledInverseDynamics"]
