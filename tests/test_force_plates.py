@@ -201,6 +201,22 @@ def test_two_feet_on_one_plate_share_it_and_their_wrenches_are_unknown(tmp_path)
     assert np.isnan(rec.external_wrench[:, 1:]).all() and (rec.external_wrench[:, 0] == 0).all()
 
 
+def test_a_foot_whose_heel_lies_beyond_the_plates_edge_overhangs_it(tmp_path):
+    """The contact stays the foot's, its frames marked: the heel may rest on the floor beside the plate
+    (HC002D25's right heel, 20 mm over plate 2's edge, as here)."""
+    plates = (Plate(DOWN, (232.0, 254.0, 0.0)), Plate(DOWN, (232.0, -324.0, 0.0)))  # y 0..508 and -578..-70
+    S = 200
+    signals = [plate.channels(constant([0, 0, 300.0], S), constant(cop, S), constant(0.0, S))
+               for plate, cop in zip(plates, ([232.0, 100.0, 0.0], [232.0, -300.0, 0.0]))]
+    markers = {"LHEE": (232.0, -20.0, 25.0), "LTOE": (232.0, 150.0, 35.0),  # heel 20 mm beyond plate 1's edge
+               "RHEE": (232.0, -400.0, 25.0), "RTOE": (232.0, -240.0, 35.0)}  # wholly over plate 2
+    rec = read_c3d(write_plates(tmp_path / "edge.c3d", plates, signals, 20, markers))
+    left, right = rec.meta["force_plates"]["contacts"]
+    assert left["link"] == "LFO" and left["overhang_frames"] == [[0, 20]]
+    assert right["link"] == "RFO" and right["overhang_frames"] == []
+    np.testing.assert_allclose(rec.external_wrench[:, rec.links.index("LFO"), 2], 300.0, atol=1e-3)  # still the foot's
+
+
 def test_a_plate_far_from_every_foot_is_given_to_none(tmp_path):
     plate = Plate(DOWN, (232.0, 254.0, 0.0))
     S = 200

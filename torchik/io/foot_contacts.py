@@ -43,10 +43,12 @@ class Contact:
     link: str | None
     distance: float
     shared: tuple[str, ...] = ()
+    overhang: tuple[tuple[int, int], ...] = ()  # the runs [start, stop) of frames its foot overhangs the plate
 
     def to_json(self) -> dict:
         return dict(plate=self.plate, start_frame=self.start, stop_frame=self.stop, link=self.link,
-                    distance_m=None if np.isnan(self.distance) else round(self.distance, 4), shared=list(self.shared))
+                    distance_m=None if np.isnan(self.distance) else round(self.distance, 4), shared=list(self.shared),
+                    overhang_frames=[list(run) for run in self.overhang])
 
 
 def runs(flags: np.ndarray) -> list[tuple[int, int]]:
@@ -72,7 +74,10 @@ def assign_contacts(reactions: GroundReactions, feet: dict[str, tuple[np.ndarray
             if len(standing) > 1:
                 found.append(Contact(plate.number, start, stop, None, d, standing))
             else:
-                found.append(Contact(plate.number, start, stop, nearest if d <= MAX_DISTANCE else None, d))
+                link = nearest if d <= MAX_DISTANCE else None
+                overhang = () if link is None else tuple(
+                    (start + a, start + b) for a, b in runs(_overhangs(plate, *(x[start:stop] for x in feet[link]))))
+                found.append(Contact(plate.number, start, stop, link, d, overhang=overhang))
     return found
 
 
@@ -106,6 +111,14 @@ def _median_distance(plate: ForcePlate, cop: np.ndarray, heel: np.ndarray, toe: 
     d = np.linalg.norm(a + t[:, None] * v, axis=-1)
     d = d[np.isfinite(d)]
     return float(np.median(d)) if d.size else float("nan")
+
+
+def _overhangs(plate: ForcePlate, heel: np.ndarray, toe: np.ndarray) -> np.ndarray:
+    """[F] whether the heel or the toe [F,3] lies beyond the plate's edges, in its plane (False where unseen)."""
+    local = (np.stack((heel, toe), 1) - plate.centre) @ plate.rotation  # [F,2,3] in the plate's frame
+    half = np.abs((plate.corners - plate.centre) @ plate.rotation).max(0)[:2]
+    with np.errstate(invalid="ignore"):
+        return (np.abs(local[..., :2]) > half).any(-1).any(-1)
 
 
 def _stands(plate: ForcePlate, heel: np.ndarray, toe: np.ndarray) -> bool:
