@@ -21,8 +21,14 @@ dynamics`; the conventions are docs/dynamics.md's).
   plate measures; the residual carries it. `covered` marks the frames where every foot on the ground
   stands on a plate: the ground is told from the file's gait events where it has them (Vicon's "Foot
   Strike" and "Foot Off"), else from the model's feet (within 3 cm of the lowest they go and slower
-  than 0.3 m/s). Over those frames the residual measures how far the model's masses and the tracked
-  motion agree with the plates.
+  than 0.3 m/s). A foot whose heel or toe overhangs its plate's edge (`io/foot_contacts.py`) may rest
+  partly on the floor beside it: it does not count as on a plate there. Over those frames the residual
+  measures how far the model's masses and the tracked motion agree with the plates.
+- **The residual's frames** (`residual_frames`): the covered ones with a plate loaded, less those
+  within the motion's low-pass' `reach` (6 frames at 6 Hz and 100 Hz) of one the plates do not
+  cover: the residual compares the motion and the plates through the same filter (the loop on
+  forces', `dynamics_loop.py`), and a filtered plate sample there mixes in frames where a foot's
+  reaction is missing.
 
 The sagittal plane of the human models: each leg joint's y degree of freedom is its flexion axis
 (x forward, y left, z up in the zero posture); a positive turn about y is hip extension, knee
@@ -40,7 +46,7 @@ import torch
 
 from ..errors import InputError
 from ..io.recording import Recording
-from ..method.dynamics import CUTOFF, low_pass, trajectory_dynamics
+from ..method.dynamics import CUTOFF, low_pass, reach, trajectory_dynamics
 from ..method.dynamics.inverse import GRAVITY
 from ..method.kinematics import KinematicModel
 from ..method.kinematics.mass import total_mass
@@ -176,7 +182,9 @@ def motion_dynamics(model: KinematicModel, recording: Recording, links: Sequence
                             covered=np.zeros(T, dtype=bool), mass=0.0, trajectory=trajectory, tracking=report,
                             notes=notes)
     result = with_forces(result, model, recording, wrenches)
-    result.covered = covered_frames(result, model)
+    overhang = overhanging(recording, wrench_links, T)
+    result.notes["overhang_frames"] = {link: int(n) for link, n in zip(wrench_links, overhang.sum(0)) if n}
+    result.covered = covered_frames(result, model, overhang)
     return result
 
 
@@ -261,8 +269,35 @@ def _about(wrenches: np.ndarray, origins: np.ndarray | None, model: KinematicMod
     return out[:, None]
 
 
-def covered_frames(dynamics: MotionDynamics, model: KinematicModel) -> np.ndarray:
-    """[T] the frames where every foot on the ground stands on a plate (module docstring)."""
+def overhanging(recording: Recording, links: Sequence[str], frames: int) -> np.ndarray:
+    """[T,L] where each of `links` overhangs the plate whose contact it has (the reader's contacts'
+    overhang_frames, through the link map's segments; none where the recording kept no contacts)."""
+    out = np.zeros((frames, len(links)), dtype=bool)
+    contacts = ((recording.meta.get("force_plates") or {}).get("contacts")) or []
+    to_link = {segment: link for link, segment in ((recording.meta.get("link_map") or {}).get("segments") or {}).items()}
+    for contact in contacts:
+        link = to_link.get(contact.get("link"), contact.get("link"))
+        if link in links:
+            for start, stop in contact.get("overhang_frames") or []:
+                out[start:min(stop, frames), list(links).index(link)] = True
+    return out
+
+
+def residual_frames(dynamics: MotionDynamics) -> np.ndarray:
+    """[T] the frames the residual is measured on (module docstring): covered, a plate loaded, the
+    plates known, and no frame within the motion's low-pass' reach that is not."""
+    T = len(dynamics.time)
+    if not dynamics.wrench_links or T < 2:
+        return np.zeros(T, dtype=bool)
+    seen = dynamics.covered & np.isfinite(dynamics.wrenches).all((1, 2))
+    k = reach(1.0 / float(np.median(np.diff(dynamics.time))), dynamics.notes["cutoff_hz"])
+    near = np.convolve((~seen).astype(float), np.ones(2 * k + 1), mode="same") > 0  # within k of an unseen frame
+    return seen & ~near & dynamics.stance.any(-1)
+
+
+def covered_frames(dynamics: MotionDynamics, model: KinematicModel, overhang: np.ndarray | None = None) -> np.ndarray:
+    """[T] the frames where every foot on the ground stands on a plate (module docstring); overhang
+    [T,L] where a foot of `wrench_links` overhangs its plate (`overhanging`)."""
     T = len(dynamics.time)
     covered = np.ones(T, dtype=bool)
     for side in SIDES:
@@ -274,6 +309,8 @@ def covered_frames(dynamics: MotionDynamics, model: KinematicModel) -> np.ndarra
             ground = contact_mask(link_origins(model, dynamics.trajectory, (foot,))[:, 0], dynamics.time)
         on_plate = dynamics.stance[:, dynamics.wrench_links.index(foot)] if foot in dynamics.wrench_links else \
             np.zeros(T, dtype=bool)
+        if overhang is not None and foot in dynamics.wrench_links:
+            on_plate = on_plate & ~overhang[:, dynamics.wrench_links.index(foot)]
         covered &= ~ground | on_plate
     return covered
 

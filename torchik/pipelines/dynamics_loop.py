@@ -6,10 +6,15 @@
    off is the plate's, not the foot's. Where a foot stands on two plates at once, or one plate carries
    two feet, the plates' shares are unknown (NaN) and those frames are left out of the fit. Without
    the contacts (a recording that kept only the feet's wrenches) each foot counts as a plate.
-2. **The fit**: `fit_dynamics` over the frames where the plates carry every foot on the ground and one
-   is loaded (`summary`'s frames: elsewhere the residual holds a foot's reaction no plate measured),
-   with the motion's cutoff and the plates as the inverse dynamics took them (low-passed only at its
-   wrench cutoff): the residual fitted is the one reported.
+2. **The fit**: `fit_dynamics` over `residual_frames` (the plates carry every foot on the ground, one
+   is loaded, and none is missing within the low-pass' reach: elsewhere the residual holds a foot's
+   reaction no plate measured), with the plates as read low-passed at the motion's cutoff: the
+   residual is a linear balance, the model's free base wrench less the plates', so through one filter
+   it is the filtered residual of the unfiltered signals; through two (the plates at 30 Hz, the motion
+   at 6 Hz) it also holds the plates' content between the cut-offs, the impacts most (Kristianslund
+   et al. 2012, J Biomech 45:666, on matching the cut-offs of forces and motion), which no effect
+   explains. The torques keep the plates as the inverse dynamics took them (`--wrench-cutoff`): the
+   residual fitted and reported is the matched one, `ClosedLoop.wrench_before`, `wrench_after`.
 3. **The correction**: the kept effects applied (the model's masses and centres of mass; each plate's
    centre of pressure offset undone on the foot it carried; the feet's reactions read at the fitted
    lag) and the forces computed again on the same trajectory (masses do not move the kinematics).
@@ -20,17 +25,16 @@ was given (`LoopResidual`): the fitted body mass does not rescale the yardstick.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 
 from ..errors import InputError
 from ..io.recording import Recording
-from ..method.dynamics import low_pass
 from ..method.dynamics.inverse import GRAVITY
 from ..method.kinematics import KinematicModel
-from .dynamics import MotionDynamics, with_forces
+from .dynamics import MotionDynamics, residual_frames, with_forces
 from .dynamics_effects import cop_effect, corrected_plates, shift
 from .dynamics_fit import DynamicsFit, fit_dynamics
 
@@ -53,20 +57,24 @@ class LoopResidual:
 @dataclass
 class ClosedLoop:
     """`before` and `after` the loop (the same motion; `after` with the corrected model and plates),
-    `frames` [T] those fitted and compared, `fit` what was found (None when nothing could be fitted:
-    `reason` says why), `plates` the plates' names in the fit's order, `mass` (kg) the body mass given."""
+    wrench_before and wrench_after [T,6] their base residuals with the plates low-passed as the motion
+    is (module docstring, 2), `frames` [T] those fitted and compared, `fit` what was found (None when
+    nothing could be fitted: `reason` says why), `plates` the plates' names in the fit's order, `mass`
+    (kg) the body mass given."""
 
     before: MotionDynamics
     after: MotionDynamics
+    wrench_before: np.ndarray
+    wrench_after: np.ndarray
     frames: np.ndarray
     fit: DynamicsFit | None
     plates: tuple[str, ...]
     mass: float
     reason: str = ""
 
-    def residual(self, dynamics: MotionDynamics) -> LoopResidual:
-        """The residual of `before` or `after` over `frames` (module docstring)."""
-        wrench = dynamics.base_wrench[self.frames]
+    def residual(self, wrench: np.ndarray) -> LoopResidual:
+        """The residual `wrench` [T,6] (`wrench_before` or `wrench_after`) over `frames`."""
+        wrench = wrench[self.frames]
         force = np.linalg.norm(wrench[:, :3], axis=-1) / (self.mass * float(np.linalg.norm(GRAVITY)))
         moment = np.linalg.norm(wrench[:, 3:], axis=-1) / self.mass
         rms = lambda x: float(np.sqrt(np.nanmean(x ** 2))) if np.isfinite(x).any() else float("nan")  # noqa: E731
@@ -76,7 +84,7 @@ class ClosedLoop:
     def to_json(self) -> dict:
         fit = self.fit
         return dict(frames=int(self.frames.sum()), plates=list(self.plates), not_fitted=self.reason or None,
-                    before=self.residual(self.before).to_json(), after=self.residual(self.after).to_json(),
+                    before=self.residual(self.wrench_before).to_json(), after=self.residual(self.wrench_after).to_json(),
                     kept=[] if fit is None else [dict(name=e.name, value=list(e.value), units=list(e.labels),
                                                       relative=e.relative, score=e.score, halves=[list(h) for h in e.halves])
                                                  for e in fit.effects],
@@ -86,7 +94,7 @@ class ClosedLoop:
 
     def lines(self) -> list[str]:
         """What the command prints: the residual before and after, the effects kept and refused."""
-        b, a = self.residual(self.before), self.residual(self.after)
+        b, a = self.residual(self.wrench_before), self.residual(self.wrench_after)
         out = [f"loop on forces over the {int(self.frames.sum())} frames the plates carry every foot: residual force "
                f"rms {100 * b.force_rms:.1f} -> {100 * a.force_rms:.1f} % of body weight (max {100 * b.force_max:.1f} "
                f"-> {100 * a.force_max:.1f}), moment rms {b.moment_rms:.3f} -> {a.moment_rms:.3f} N m/kg"]
@@ -100,20 +108,17 @@ class ClosedLoop:
 def close_loop(model: KinematicModel, recording: Recording, dynamics: MotionDynamics) -> ClosedLoop:
     """The loop of the module docstring on `dynamics` (`motion_dynamics` of `recording`, mapped, on
     `model`): the fit, and the forces again with what it kept."""
-    frames = dynamics.covered & dynamics.stance.any(-1) if dynamics.wrench_links else np.zeros(len(dynamics.time), bool)
+    frames = residual_frames(dynamics)
     plates, names, owner = plate_wrenches(dynamics, recording)
-    loop = ClosedLoop(dynamics, dynamics, frames, None, names, dynamics.mass)
+    matched = matched_residual(dynamics, model, recording, dynamics.wrenches) if dynamics.wrench_links else \
+        dynamics.base_wrench
+    loop = ClosedLoop(dynamics, dynamics, matched, matched, frames, None, names, dynamics.mass)
     if not dynamics.wrench_links:
         loop.reason = "no ground reactions on the model"
         return loop
     try:
-        given = torch.as_tensor(plates, dtype=model.dtype)
-        if dynamics.notes["wrench_cutoff_hz"]:
-            rate = 1.0 / float(np.median(np.diff(dynamics.time)))
-            given = low_pass(given.nan_to_num(0.0), rate, dynamics.notes["wrench_cutoff_hz"]).masked_fill(given.isnan(),
-                                                                                                         torch.nan)
-        fit = fit_dynamics(model, dynamics.trajectory, given, cutoff=dynamics.notes["cutoff_hz"],
-                           frames=torch.as_tensor(frames), plate_names=names, filter_plates=False)
+        fit = fit_dynamics(model, dynamics.trajectory, torch.as_tensor(plates, dtype=model.dtype),
+                           cutoff=dynamics.notes["cutoff_hz"], frames=torch.as_tensor(frames), plate_names=names)
     except InputError as error:
         loop.reason = str(error)
         return loop
@@ -122,7 +127,16 @@ def close_loop(model: KinematicModel, recording: Recording, dynamics: MotionDyna
         rate = 1.0 / float(np.median(np.diff(dynamics.time)))
         wrenches = corrected_wrenches(dynamics.wrenches, plates, names, owner, fit, rate)
         loop.after = with_forces(dynamics, fit.model, recording, wrenches)
+        loop.wrench_after = matched_residual(loop.after, fit.model, recording, wrenches)
     return loop
+
+
+def matched_residual(dynamics: MotionDynamics, model: KinematicModel, recording: Recording,
+                     wrenches: np.ndarray) -> np.ndarray:
+    """[T,6] the base's residual of `dynamics`' motion on `model` with the feet's `wrenches` low-passed
+    at the motion's cutoff, whatever the torques took them at (module docstring, 2)."""
+    notes = dict(dynamics.notes, wrench_cutoff_hz=dynamics.notes["cutoff_hz"])
+    return with_forces(replace(dynamics, notes=notes), model, recording, wrenches).base_wrench
 
 
 def plate_wrenches(dynamics: MotionDynamics, recording: Recording) -> tuple[np.ndarray, tuple[str, ...], np.ndarray]:

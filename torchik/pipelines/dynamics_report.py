@@ -198,17 +198,18 @@ def residual_figure(d: MotionDynamics, path: Path) -> Path:
 
 
 def loop_figure(loop: ClosedLoop, path: Path, title: str = "") -> Path:
-    """The residual force (per body weight given) over time before and after the loop on forces, the
-    frames fitted and compared shaded; `title` above it (default: the residuals' rms)."""
+    """The residual force (per body weight given; the plates low-passed as the motion is) over time
+    before and after the loop on forces, the frames fitted and compared shaded; `title` above it
+    (default: the residuals' rms)."""
     fig = figure((10, 3.2))
     ax = fig.add_subplot(1, 1, 1)
     t, weight = loop.before.time, loop.mass * float(np.linalg.norm(GRAVITY))
     for start, stop in runs(loop.frames):
         ax.axvspan(t[start], t[min(stop, len(t) - 1)], color="tab:blue", alpha=0.12, lw=0)
-    for d, color, label in ((loop.before, "grey", "before"), (loop.after, "black", "after")):
-        ax.plot(t, np.linalg.norm(d.base_wrench[:, :3], axis=-1) / weight, color=color, lw=1.1, label=label)
+    for wrench, color, label in ((loop.wrench_before, "grey", "before"), (loop.wrench_after, "black", "after")):
+        ax.plot(t, np.linalg.norm(wrench[:, :3], axis=-1) / weight, color=color, lw=1.1, label=label)
     ax.axhline(0.1, color="tab:red", lw=0.7, ls=":", label="10 % of body weight")
-    b, a = loop.residual(loop.before), loop.residual(loop.after)
+    b, a = loop.residual(loop.wrench_before), loop.residual(loop.wrench_after)
     top = max(b.force_max, a.force_max, 0.1)
     if math.isfinite(top):  # off the shaded frames a foot's reaction no plate saw: up to the whole weight
         ax.set_ylim(0.0, 1.3 * top)
@@ -226,7 +227,7 @@ def loop_figure(loop: ClosedLoop, path: Path, title: str = "") -> Path:
 
 def _loop_markdown(loop: ClosedLoop) -> list[str]:
     """report.md's section on the loop on forces."""
-    b, a = loop.residual(loop.before), loop.residual(loop.after)
+    b, a = loop.residual(loop.wrench_before), loop.residual(loop.wrench_after)
     lines = ["## The loop on forces", "",
              f"What the base's residual says the model or the plates lack (`dynamics_fit.py`: segment masses, the "
              f"trunk's centre of mass, each plate's centre of pressure, the plates' lag; fitted on one half of the "
