@@ -37,6 +37,16 @@ MAX_BIAS = 25.0
 # floor, placement.py, is 1 deg) and is the order of a calibrated MEMS gyro's in-run bias; below it
 # a gyro's bias changes no joint angle anyone reports.
 BIAS_FLOOR = 0.2  # deg/s
+# A tilt-correcting filter pulls its orientations toward what its accelerometer says is up, and on a
+# segment that accelerates (a foot, a shank) the walk's accelerations its body model leaves in the
+# accelerometer pull the tilt back and forth: the gyro's disagreement with its own orientations wanders
+# from one two-second block to the next by a degree per second on a walking foot, against a tenth or two
+# on the trunk (the orientations' noise). That pull has a constant part too, of the order of a quarter to
+# a third of its wander (a Mahony filter leaving 3 % of the walk's accelerations: 0.2-0.4 deg/s on the
+# feet of experiments/sensor_physics.py's walks, none injected), which no data tell from a bias. A
+# bias under WANDER_SHARE of the wander is the filter's as much as the gyro's: listed, not added.
+WANDER_SHARE = 0.5
+WANDER_BLOCK = 2.0  # s
 # A scale error of 0.5 % is within the tolerance a vendor calibrates a gyro's sensitivity to, and on a
 # limb turning at 5 rad/s it is 0.025 rad/s, a gyro's own noise.
 SCALE_FLOOR = 0.5  # %
@@ -55,6 +65,11 @@ class GyroBias(Effect):
 
     def size(self, dt):
         return float(np.degrees(np.linalg.norm(self.params["bias"])))
+
+    def relevance_floor(self, dt):
+        """BIAS_FLOOR, or WANDER_SHARE of how much the gyro's disagreement with its orientations wanders
+        (params['wander'], rad/s: _wander) where that is more."""
+        return max(self.floor, WANDER_SHARE * math.degrees(self.params.get("wander", 0.0)))
 
     def apply(self, recording, sign):
         i, b = _link(recording, self.target), np.asarray(self.params["bias"])
@@ -231,7 +246,7 @@ def _bias(name: str, e: torch.Tensor, R: torch.Tensor, ok: torch.Tensor, time: t
     W = whitener(noise, t)
     y, leftover = W @ C, W @ (C - GI @ bias)
     fit = _likelihood_ratio(y, leftover, 3)
-    params: dict = dict(bias=bias.tolist(), frame=frame.name)
+    params: dict = dict(bias=bias.tolist(), frame=frame.name, wander=_wander(e, R, ok, time))
     # a heading drift makes e a constant -rate z in the world frame: one parameter for what a bias
     # would need three, and where it leaves about as little (the likelihood ratio less what the bias'
     # two more parameters cost), it is the drift
@@ -243,6 +258,20 @@ def _bias(name: str, e: torch.Tensor, R: torch.Tensor, ok: torch.Tensor, time: t
     if n * math.log(float(turn_leftover.square().sum()) / float(leftover.square().sum())) <= 2 * math.log(n):
         params["vertical_turn_score"] = _likelihood_ratio(y, turn_leftover, 1).score
     return GyroBias("gyro_bias", name, params, dict(bias=cov.diagonal().sqrt().tolist()), 3, fit)
+
+
+def _wander(e: torch.Tensor, R: torch.Tensor, ok: torch.Tensor, time: torch.Tensor, transient: float = 1.0) -> float:
+    """How much a gyro's disagreement e [T,3] (world frame) with its orientations R [T,3,3] wanders, in
+    rad/s: the rms of its means over WANDER_BLOCK-second blocks (sensor frame, valid samples where ok
+    [T], past the first `transient` seconds) about their mean; 0 with under four blocks."""
+    keep = ok & (time >= time[0] + transient)
+    stride = max(1, int(round(WANDER_BLOCK / float(torch.diff(time).median()))))
+    e_sensor = (R.transpose(-1, -2) @ e[..., None])[..., 0][keep]
+    blocks = len(e_sensor) // stride
+    if blocks < 4:
+        return 0.0
+    means = e_sensor[:blocks * stride].reshape(blocks, stride, 3).mean(1)
+    return float((means - means.mean(0)).square().sum(-1).mean().sqrt())
 
 
 def _likelihood_ratio(y: torch.Tensor, leftover: torch.Tensor, k: int) -> Score:
