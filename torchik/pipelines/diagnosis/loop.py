@@ -52,6 +52,7 @@ from . import (
     frames,
     jointfit,
     joints,
+    limit_turn,
     placement,
     preference,
     refinement,
@@ -332,6 +333,8 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
         for s, chosen, *_ in added:  # an axis kept beside a misalignment may be that turn on the wrong side
             for axis in [e for e in chosen if isinstance(e, joints.MissingDof) and any(e is k for k in s.effects)]:
                 crossing.other_side(s, axis, links, gain, threshold, progress, max_samples, say)
+            for limit in [e for e in chosen if isinstance(e, joints.JointLimit) and any(e is k for k in s.effects)]:
+                limit_turn.limit_as_turn(s, limit, links, gain, threshold, progress, max_samples, say)
     if eliminate:  # the last check: each kept effect with every other in place, the last added too
         found = [v for s in subjects if len(s.effects) > 1 for v in elimination.variants(s, s.effects, every=True)]
         elimination.track([], found, links, gain, progress, max_samples)
