@@ -129,6 +129,7 @@ def sagittal_figure(d: MotionDynamics, path: Path, kinetics: dict[tuple[str, str
         for side in SIDES:
             moment, power = d.sagittal(side, joint)
             pig = kinetics.get((side, joint))
+            pig = None if pig is None else pig.per_kg_of(d.mass)  # per kg of the model's mass, as torchik's
             spans = cycles[side] if cycles is not None else [(0, len(d.time))]
             for k, (a, b) in enumerate(spans):
                 x = 100.0 * (d.time[a:b] - d.time[a]) / (d.time[b] - d.time[a]) if cycles is not None else d.time[a:b]
