@@ -269,7 +269,7 @@ def markdown(d: MotionDynamics, numbers: dict, model_name: str, subject: dict | 
     agreement with Plug-in Gait, the files and the conventions."""
     notes, lines = d.notes, []
     lines += [f"# Dynamics of {notes.get('source')}", ""]
-    who = f"{d.mass:.1f} kg"
+    who = f"{d.mass:.2f} kg"
     if subject:
         who += (f", {subject.get('height_m', float('nan')):.3f} m, from {subject.get('source')} "
                 f"(mass: {subject.get('mass_from')})")
