@@ -1,18 +1,21 @@
 """The loop on forces on the shared Vicon walks: the base's residual before and after it.
 
     python experiments/dynamics_loop.py [--out experiments/dynamics/loop.md] [--figures experiments/dynamics]
+                                        [--mass-from plates|bodymass]
 
 Each walk goes through `torchik dynamics`'s pipeline as `dynamics_plugin_gait.py` runs it (the subject
-from the static trial, Human66, plugin_gait_to_human calibrated on the static trial, the plates as read),
+from the static trial, its mass what the static trial's plates weigh, io/weighing.py, or with
+--mass-from bodymass PROCESSING:Bodymass; Human66, plugin_gait_to_human calibrated on the static
+trial, the plates as read),
 then `close_loop` (pipelines/dynamics_loop.py). Nothing was tuned on any walk: the effects, their
 limits and the significance are `dynamics_fit.py`'s as the tests on synthetic walks set them.
 
 A row per walk. Columns: the residual over `residual_frames` (the plates carry every foot wholly, and
 none is missing within the 6 Hz low-pass' reach), with the plates low-passed at the motion's 6 Hz
 (force % of the body weight given, rms and max; moment N m/kg rms), before and after, the effects
-kept and refused, and what the static trial's plates weigh the subject (`static_weight`: the mean
-vertical force over the trial where every foot marker stands on a plate, against the file's
-Bodymass). A figure per walk: <figures>/loop_<walk>.png, the residual force over time before and
+kept and refused, and the subject's mass and where it came from (the static trial's plates: the
+mean vertical force over g where the subject stands still with every foot on a plate, against the
+file's Bodymass). A figure per walk: <figures>/loop_<walk>.png, the residual force over time before and
 after, those frames shaded.
 """
 
@@ -23,7 +26,6 @@ import time
 from datetime import date
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from torchik.io import map_recording, read
@@ -42,12 +44,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, help="also write the table here (Markdown)")
     parser.add_argument("--figures", type=Path, default=Path("experiments/dynamics"), help="the figures' folder")
+    parser.add_argument("--mass-from", choices=("plates", "bodymass"), default="plates",
+                        help="the subject's mass: the static trial's plates' (default) or PROCESSING:Bodymass")
     args = parser.parse_args()
     torch.set_num_threads(1)
     args.figures.mkdir(parents=True, exist_ok=True)
     lines = [f"# The loop on forces on the shared walks, {date.today()}", "",
              "| walk | frames | force rms before -> after (% BW) | force max before -> after | "
-             "moment rms before -> after (N m/kg) | kept | refused | static trial on the plates |",
+             "moment rms before -> after (N m/kg) | kept | refused | the subject's mass |",
              "|---|---:|---|---|---|---|---|---|"]
     start = time.perf_counter()
     for walk, static_name in WALKS:
@@ -55,7 +59,8 @@ def main() -> None:
             print(f"skipped {walk}: {DATA / f'{walk}.c3d'} absent")
             continue
         static = read(DATA / f"{static_name}.c3d")
-        model = load_model("human66", subject_from_recording(static, map_name=MAP).subject)
+        built = subject_from_recording(static, map_name=MAP, weighed=args.mass_from == "plates")
+        model = load_model("human66", built.subject)
         recording, _ = map_recording(read(DATA / f"{walk}.c3d"), MAP, model, static)
         links = [link for link in TRACKED_LINKS["human66"] if link in recording.links]
         loop = close_loop(model, recording, motion_dynamics(model, recording, links))
@@ -64,7 +69,7 @@ def main() -> None:
                          + ("" if e.relative is None else f" ({100 * e.relative:+.0f} %)")
                          for e in loop.fit.effects) if loop.fit else loop.reason
         refused = "; ".join(f"{r.name}: {r.reason}" for r in loop.fit.refused) if loop.fit else ""
-        weighed = static_weight(DATA / f"{static_name}.c3d")
+        weighed = f"{built.subject.mass:.2f} kg: {built.mass_from}"
         lines += [f"| {walk} | {int(loop.frames.sum())} | {100 * b.force_rms:.1f} -> {100 * a.force_rms:.1f} | "
                   f"{100 * b.force_max:.1f} -> {100 * a.force_max:.1f} | {b.moment_rms:.3f} -> {a.moment_rms:.3f} | "
                   f"{kept or 'nothing'} | {refused or '-'} | {weighed} |"]
@@ -78,33 +83,6 @@ def main() -> None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text("\n".join(lines) + "\n")
         print(f"wrote {args.out}")
-
-
-def static_weight(path: Path) -> str:
-    """What the static trial's plates weigh the subject: their vertical forces summed, averaged over
-    the frames where every heel and toe marker lies over a plate, in kg, against PROCESSING:Bodymass."""
-    import ezc3d
-
-    from torchik.io.force_plates import ground_reactions
-
-    c3d = ezc3d.c3d(str(path))
-    labels = list(c3d["parameters"]["POINT"]["LABELS"]["value"])
-    reactions = ground_reactions(c3d, 1e-3)  # the shared files' points are in mm
-    markers = [name for name in ("LHEE", "LTOE", "RHEE", "RTOE") if name in labels]
-    if not reactions.plates or len(markers) < 4:
-        return "no plates or no foot markers"
-    xyz = c3d["data"]["points"][:3, [labels.index(name) for name in markers]].transpose(2, 1, 0) * 1e-3  # [T,4,3]
-    over = np.zeros(xyz.shape[:2], dtype=bool)
-    for plate in reactions.plates:
-        local = (xyz - plate.centre) @ plate.rotation
-        half = np.abs((plate.corners - plate.centre) @ plate.rotation).max(0)[:2]
-        over |= (np.abs(local[..., :2]) <= half).all(-1)
-    whole = over.all(-1)
-    if not whole.any():
-        return "not wholly on the plates"
-    kg = float((reactions.force[whole, :, 2].sum(-1)).mean()) / 9.81
-    stated = float(np.ravel(c3d["parameters"]["PROCESSING"]["Bodymass"]["value"])[0])
-    return f"{kg:.2f} kg over {int(whole.sum())} frames (Bodymass {stated:.1f} kg: {100 * (kg / stated - 1):+.1f} %)"
 
 
 if __name__ == "__main__":

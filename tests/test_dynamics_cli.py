@@ -65,7 +65,8 @@ def test_a_subject_standing_on_two_plates_leaves_no_residual_and_each_ankle_hold
     code, stdout, err = cli("dynamics", "--input", path, "--map", "plugin_gait_to_human", "--calibration", path,
                             "--model", "human48", "--report", out, "--rrd", tmp_path / "standing.rrd")
     assert code == 0, err
-    assert "subject from" in stdout and "32.1 kg (the file)" in stdout and "on the plates (frames): RightFoot 0-59" in stdout
+    assert "subject from" in stdout and "32.10 kg (the static trial's plates: 60 still frames" in stdout
+    assert "on the plates (frames): RightFoot 0-59" in stdout
     for name in ("joint_torques.csv", "joint_powers.csv", "residual.csv", "ground_reactions.csv", "sagittal.png",
                  "residual.png", "report.md", "summary.json"):
         assert (out / name).stat().st_size > 0, name
@@ -123,11 +124,13 @@ def test_a_file_without_plates_is_refused_unless_asked_to_compute_without(pig_se
 
 def test_the_calibration_trial_builds_the_subject_whose_masses_follow_its_bodymass(pig_session, cli, tmp_path):
     """`torchik track --calibration static.c3d` without --subject-from: the static trial states the body
-    mass (PROCESSING:Bodymass), so the subject is built from it (32.1 kg, 1.45 m), as --subject-from would."""
+    mass (PROCESSING:Bodymass), so the subject is built from it (32.1 kg, 1.45 m), as --subject-from would;
+    it has no plates to weigh the subject on, which the line says."""
     code, stdout, err = cli("track", "--input", pig_session.walk, "--map", "plugin_gait_to_human", "--calibration",
                             pig_session.static, "--model", "human48")
     assert code == 0, err
-    assert f"subject from {pig_session.static}: height 1.450 m (the file), mass 32.1 kg (the file)" in stdout
+    assert (f"subject from {pig_session.static}: height 1.450 m (the file), mass 32.1 kg (the file's "
+            f"PROCESSING:Bodymass; the plates do not weigh the subject: the file has no force plates)") in stdout
 
 
 def test_stance_from_gait_events_and_the_frames_the_plates_cover():

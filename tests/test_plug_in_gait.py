@@ -78,3 +78,17 @@ def test_the_sagittal_powers_in_stance_follow_plug_in_gaits(walk):
     for a in rows:
         assert a.r_sagittal >= sagittal - MARGIN and a.r_sagittal >= 0.9, a
         assert a.r_total >= total - MARGIN, a
+
+
+@skip_without_shared
+def test_plug_in_gaits_values_per_kg_of_bodymass_become_per_kg_of_the_models_mass():
+    """Plug-in Gait divides by PROCESSING:Bodymass (HC002's 32.1 kg); the comparison takes its values per kg
+    of the model's mass (what the static trial's plates weigh, 31.07 kg): the same joint's W, one mass."""
+    kinetics = plug_in_gait_kinetics(shared_file("c3d/HC002D06.c3d"))
+    knee = kinetics[("Right", "Knee")]
+    assert knee.bodymass == pytest.approx(32.1, abs=1e-4)
+    weighed = knee.per_kg_of(31.07)
+    assert weighed.bodymass == 31.07
+    for ours, theirs in ((weighed.moment, knee.moment), (weighed.sagittal_power, knee.sagittal_power),
+                         (weighed.total_power, knee.total_power)):
+        np.testing.assert_allclose(ours * 31.07, theirs * knee.bodymass, equal_nan=True)

@@ -165,8 +165,8 @@ def add_subject_argument(parser: argparse.ArgumentParser, calibration_builds: bo
     """--subject-from: track with the subject's own human model, built from a recording (calibration_builds:
     the command builds it from a --calibration trial that states the body mass when none is given,
     `subject_source`)."""
-    default = ("; without it, a --calibration trial that states the body mass (Plug-in Gait's "
-               "PROCESSING:Bodymass) builds it" if calibration_builds else "")
+    default = ("; without it, a --calibration trial that weighs the subject on its plates or states the body "
+               "mass (Plug-in Gait's PROCESSING:Bodymass) builds it" if calibration_builds else "")
     parser.add_argument("--subject-from", metavar="RECORDING",
                         help="build the human model from this recording's skeleton (MVNX joint points, BVH bone "
                              "offsets through the map, a C3D static trial's Plug-in Gait lengths; a converted .npz "
@@ -174,19 +174,22 @@ def add_subject_argument(parser: argparse.ArgumentParser, calibration_builds: bo
 
 
 def states_mass(path: str | None) -> bool:
-    """Whether a recording states the subject's body mass (a Plug-in Gait trial's PROCESSING:Bodymass)."""
+    """Whether a recording states the subject's body mass (a Plug-in Gait trial's PROCESSING:Bodymass) or
+    weighs it (a static trial's force plates, io/weighing.py)."""
     if not path:
         return False
     from ..io import read
 
-    return bool((read(path).meta.get("skeleton") or {}).get("mass"))
+    skeleton = read(path).meta.get("skeleton") or {}
+    return bool(skeleton.get("mass") or (skeleton.get("weighed") or {}).get("mass_kg"))
 
 
 def subject_source(args: argparse.Namespace, *more: str | None) -> str | None:
     """The recording a human model's subject is built from: --subject-from, else the first of
-    --calibration and `more` (e.g. the input) that states the body mass (a Plug-in Gait trial: the
-    model's segment masses, centres of mass and inertias then follow PROCESSING:Bodymass and its
-    lengths), else None (the default subject). None for a model given as a URDF or not human."""
+    --calibration and `more` (e.g. the input) that states or weighs the body mass (a Plug-in Gait trial:
+    the model's segment masses, centres of mass and inertias then follow the mass its plates weigh or
+    PROCESSING:Bodymass, and its lengths), else None (the default subject). None for a model given as a
+    URDF or not human."""
     if getattr(args, "subject_from", None):
         return args.subject_from
     if getattr(args, "urdf", None) or not str(getattr(args, "model", "")).startswith("human"):
@@ -201,15 +204,19 @@ def subject_from(path: str | None, map_name: str | None = None, say=print):
     return None if built is None else built.subject
 
 
-def build_subject(path: str | None, map_name: str | None = None, say=print):
-    """`subject_from`'s BuiltSubject (the subject and where each of its numbers came from), or None."""
+def build_subject(path: str | None, map_name: str | None = None, say=print, mass: float | None = None,
+                  weighed: bool = True):
+    """`subject_from`'s BuiltSubject (the subject and where each of its numbers came from), or None; mass
+    (kg) given and weighed: `subject_from_recording`'s."""
     if path is None:
         return None
     from ..io import read
-    from ..io.subjects import subject_from_recording
+    from ..io.subjects import WEIGHED, subject_from_recording
 
-    built = subject_from_recording(read(path), map_name=None if map_name in (None, "auto") else map_name)
+    built = subject_from_recording(read(path), mass=mass, map_name=None if map_name in (None, "auto") else map_name,
+                                   weighed=weighed)
     say(f"subject from {path}: height {built.subject.height:.3f} m ({built.height_from}), mass "
-        f"{built.subject.mass:.1f} kg ({built.mass_from}); {len(built.from_file)} segment lengths and "
+        f"{built.subject.mass:.{2 if built.mass_from.startswith(WEIGHED) else 1}f} kg ({built.mass_from}); "
+        f"{len(built.from_file)} segment lengths and "
         f"{len(built.subject.joint_origins)} joint placements from the file, {len(built.scaled)} segments scaled")
     return built

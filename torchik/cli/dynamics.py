@@ -37,8 +37,12 @@ EXAMPLES = """examples:
   torchik dynamics --input walk.npz --model human66 --report dyn/ --no-plates
                                           a recording without plates: the base's residual is the whole
                                           ground reaction
+  torchik dynamics --input walk.c3d --map plugin_gait_to_human --calibration static.c3d --report dyn/ \
+      --mass-from bodymass                the mass the file states (PROCESSING:Bodymass), not the plates'
 The model's masses follow the subject: --subject-from, else a --calibration trial or the input that
-states the body mass (Plug-in Gait's PROCESSING:Bodymass), else the default subject (62.2 kg).
+weighs or states the body mass, else the default subject (62.2 kg). Its mass: --mass, else what the
+trial's plates weigh the subject at standing still on them (a static trial), else the stated one
+(Plug-in Gait's PROCESSING:Bodymass); the output says which, and both where they differ.
 """
 
 
@@ -56,6 +60,11 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--model", default="human66", choices=("human66", "human48"),
                         help="the human model (default human66: three axes at every joint, as Plug-in Gait's)")
     add_subject_argument(parser, calibration_builds=True)
+    parser.add_argument("--mass-from", choices=("plates", "bodymass"), default="plates",
+                        help="the subject's mass: what the static trial's plates weigh it at, where it stands still "
+                             "with every foot on a plate (default; else the stated one, and the output says why), "
+                             "or the mass the file states (Plug-in Gait's PROCESSING:Bodymass)")
+    parser.add_argument("--mass", type=positive, metavar="KG", help="the subject's mass in kg: overrides both")
     parser.add_argument("--report", required=True, metavar="DIR", help="the folder to write the report into")
     parser.add_argument("--rrd", metavar="FILE", help="also write a rerun recording (.rrd): the tracked body, its ground "
                                                       "reactions as arrows, the residual and sagittal series")
@@ -89,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.base_position import measures_base_position
     from ..io.maps import default_map
     from ..method.models import TRACKED_LINKS, load_model
+    from ..method.models.human import HumanSubject
     from ..pipelines.dynamics import motion_dynamics, summary
     from ..pipelines.dynamics_report import OUTPUTS, write_report, write_rrd
 
@@ -108,9 +118,13 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--calibration calibrates a --map; give the map too")
     torch.set_num_threads(1)  # one subject's problems are too small for threads to pay
     start = time.perf_counter()
-    built = build_subject(subject_source(args, args.input), args.map, say=say)
+    built = build_subject(subject_source(args, args.input), args.map, say=say, mass=args.mass,
+                          weighed=args.mass_from == "plates")
     subject = None if built is None else built.subject
-    if subject is None:
+    if subject is None and args.mass:
+        subject = HumanSubject(mass=args.mass)
+        say(f"subject: the default's height (1.68 m), mass {args.mass:g} kg (given)")
+    elif subject is None:
         say("subject: the default (1.68 m, 62.2 kg): the file states no body mass; give --subject-from for the "
             "subject's own")
     model = load_model(args.model, subject)

@@ -15,7 +15,9 @@ NaN next to a gap.
 Where the file has force plates (FORCE_PLATFORM), the reader adds each foot's `external_wrench`:
 the plates' ground reactions (force_plates.py) at the point frames, given to the foot nearest
 each contact (foot_contacts.py, the heel and toe markers LHEE-LTOE, RHEE-RTOE or, without them,
-the ankle joint centre and the foot's origin), with the plates and contacts in meta["force_plates"].
+the ankle joint centre and the foot's origin), with the plates and contacts in meta["force_plates"],
+and what the plates weigh the subject at where it stands still on them (weighing.py) in
+meta["skeleton"]["weighed"], beside PROCESSING:Bodymass.
 Vicon's gait events (EVENT: "Foot Strike", "Foot Off", per side) are kept in meta["events"], at this
 file's frames.
 """
@@ -33,6 +35,7 @@ from . import analog
 from .foot_contacts import assign_contacts, link_wrenches
 from .force_plates import CONTACT_THRESHOLD, GroundReactions, ground_reactions
 from .recording import Recording, RecordingError, angular_velocity_from_orientations, readable_file
+from .weighing import weigh
 
 PLUG_IN_GAIT = ("PEL", "TRX", "HED", "LCL", "LHU", "LRA", "LHN", "RCL", "RHU", "RRA", "RHN",
                 "LFE", "LTI", "LFO", "LTO", "RFE", "RTI", "RFO", "RTO")
@@ -168,15 +171,21 @@ def read_ground_reactions(path: str | Path, units: str | None = None, threshold:
         raise RecordingError(f"{path}: {exc}") from None
 
 
-def _external_wrench(reactions: GroundReactions, links: tuple[str, ...], xyz: np.ndarray, valid: np.ndarray,
-                     index: dict) -> tuple[np.ndarray, dict]:
-    """Each link's plate wrench [T,n,6] (foot_contacts.py) and what meta says of the plates."""
+def _feet(xyz: np.ndarray, valid: np.ndarray, index: dict) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Each foot's ends (FOOT_POINTS) the file marks: link -> heel [T,3], toe [T,3] (m, NaN where unseen)."""
     seen = lambda name: np.where(valid[:, index[name], None], xyz[:, index[name]], np.nan)  # noqa: E731
     feet = {}
     for link, choices in FOOT_POINTS.items():
         ends = next((pair for pair in choices if all(name in index for name in pair)), None)
         if ends is not None:
             feet[link] = (seen(ends[0]), seen(ends[1]))
+    return feet
+
+
+def _external_wrench(reactions: GroundReactions, links: tuple[str, ...], xyz: np.ndarray, valid: np.ndarray,
+                     index: dict) -> tuple[np.ndarray, dict]:
+    """Each link's plate wrench [T,n,6] (foot_contacts.py) and what meta says of the plates."""
+    feet = _feet(xyz, valid, index)
     contacts = assign_contacts(reactions, feet)
     lost = sorted({c.link for c in contacts if c.link is not None and c.link not in links})
     meta = dict(reactions.to_json(), contacts=[c.to_json() for c in contacts], feet=list(feet),
@@ -239,11 +248,12 @@ def read_c3d(path: str | Path, base_link: str = "PEL", units: str | None = None,
     base_position = np.where(base_ok[:, None], base_origin, np.nan)
     velocity = np.gradient(base_position, time, axis=0) if T > 1 else np.zeros((T, 3))
     missing = {s: int((~ok).sum()) for s, ok in zip(segments, present) if (~ok).any()}
+    skeleton = _plug_in_gait_skeleton(c3d["parameters"], xyz, valid, index, unit)
     meta = dict(source=str(path), format="c3d", frame_rate=rate, units=dict(position=unit, converted_to="m"),
                 clock="shared",  # one camera system samples every marker: no segment is late on another
                 angular_velocity="derived",  # the orientations' central difference: no gyro
                 first_frame=int(c3d["header"]["points"]["first_frame"]), triad_max_deviation=worst,
-                missing_frames=missing, skeleton=_plug_in_gait_skeleton(c3d["parameters"], xyz, valid, index, unit),
+                missing_frames=missing, skeleton=skeleton,
                 events=_events(c3d["parameters"], int(c3d["header"]["points"]["first_frame"]), rate, T),
                 note="segment frames are Plug-in Gait's (anterior, lateral, proximal): calibrate them with a link map")
     position = np.full((T, len(segments), 3), np.nan)  # NaN: a segment without a joint centre, or not seen
@@ -257,6 +267,7 @@ def read_c3d(path: str | Path, base_link: str = "PEL", units: str | None = None,
             reactions = ground_reactions(c3d, UNIT_SCALE[unit])
         except InputError as exc:
             raise RecordingError(f"{path}: {exc} (forces=False reads the motion without the plates)") from None
+        skeleton["weighed"] = weigh(reactions, _feet(xyz, valid, index), base_position, time).to_json()
         if reactions.plates:
             wrench, meta["force_plates"] = _external_wrench(reactions, tuple(segments), xyz, valid, index)
         elif reactions.skipped:

@@ -121,11 +121,18 @@ def _overhangs(plate: ForcePlate, heel: np.ndarray, toe: np.ndarray) -> np.ndarr
         return (np.abs(local[..., :2]) > half).any(-1).any(-1)
 
 
-def _stands(plate: ForcePlate, heel: np.ndarray, toe: np.ndarray) -> bool:
-    """Whether the foot (heel, toe [F,3]) stands on the plate in half the frames or more."""
+def stands_on(plate: ForcePlate, heel: np.ndarray, toe: np.ndarray, margin: float = MARGIN) -> np.ndarray:
+    """[F] whether the foot (heel, toe [F,3]) stands on the plate in each frame: both lie over its
+    surface, within `margin` m beyond its edges (a negative margin: that far inside them), and the
+    lower within STANDING_HEIGHT of it (False where unseen)."""
     local = (np.stack((heel, toe), 1) - plate.centre) @ plate.rotation  # [F,2,3] in the plate's frame
     half = np.abs((plate.corners - plate.centre) @ plate.rotation).max(0)[:2]
     with np.errstate(invalid="ignore"):
-        over = (np.abs(local[..., :2]) <= half + MARGIN).all(-1).all(-1)
+        over = (np.abs(local[..., :2]) <= half + margin).all(-1).all(-1)
         low = ((np.stack((heel, toe), 1) - plate.centre) @ plate.up).min(-1) <= STANDING_HEIGHT
-    return bool((over & low).sum() * 2 >= len(heel))
+    return over & low
+
+
+def _stands(plate: ForcePlate, heel: np.ndarray, toe: np.ndarray) -> bool:
+    """Whether the foot (heel, toe [F,3]) stands on the plate in half the frames or more."""
+    return bool(stands_on(plate, heel, toe).sum() * 2 >= len(heel))

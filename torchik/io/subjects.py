@@ -6,10 +6,12 @@ format, so a converted .npz serves as well as the source file) becomes a HumanSu
   every joint placement is the file's; the segment lengths follow from them.
 - BVH: the bone offsets, through the link map (the length of a model segment is the distance from
   its source joint to the source joint of the segment it carries, summed along the bones between).
-- C3D (Plug-in Gait static trial): height, mass and femur, tibia and foot lengths from the file's
-  PROCESSING parameters; upper arm and forearm lengths between the joint centres at the clavicle,
-  humerus and radius origins; the hips' placement across the pelvis from the distance between the
-  hip joint centres (LHJC, RHJC), their height and depth the template's scaled.
+- C3D (Plug-in Gait static trial): height and femur, tibia and foot lengths from the file's
+  PROCESSING parameters; the mass the plates weigh the subject at where it stands still on them
+  (io/weighing.py: measured, where PROCESSING:Bodymass is typed), else Bodymass; upper arm and
+  forearm lengths between the joint centres at the clavicle, humerus and radius origins; the hips'
+  placement across the pelvis from the distance between the hip joint centres (LHJC, RHJC), their
+  height and depth the template's scaled.
 
 A segment length is the template's main dimension (see method.models.human): joint to the next
 joint along the segment. Segments the file does not measure are scaled from the height.
@@ -34,6 +36,7 @@ PARENT = {s.name: s.parent for s in TEMPLATE}
 STATURE = ("Pelvis", "L5", "L3", "T12", "T8", "Neck", "RightUpperLeg", "RightLowerLeg", "LeftUpperLeg", "LeftLowerLeg")
 LENGTH_RANGE = (0.005, 1.5)  # m: HumanSubject's
 HIP_WIDTH = (0.05, 0.5)  # m between the hip joint centres: a child's to a large adult's, with room
+WEIGHED = "the static trial's plates"  # how a mass the plates weigh begins its mass_from
 
 
 @dataclass(frozen=True)
@@ -96,10 +99,35 @@ def _hips(width: float | None, height: float) -> dict[str, tuple[float, float, f
             for s in TEMPLATE if s.name in ("RightUpperLeg", "LeftUpperLeg")}
 
 
+def _mass(skeleton: dict, mass: float | None, weighed: bool) -> tuple[float, str]:
+    """The subject's mass (kg) and where it came from: `mass` given, else (weighed) what the file's
+    plates weigh the subject at standing still on them, else the mass the file states, else the
+    template's. A line on the other number, or on why the plates could not weigh the subject."""
+    stated = float(skeleton["mass"]) if skeleton.get("mass") else None
+    name = "PROCESSING:Bodymass" if skeleton["format"] == "c3d" else "the file's mass"
+    scale: dict = skeleton.get("weighed") or {}
+    if mass is not None:
+        return mass, "given"
+    if weighed and scale.get("mass_kg"):
+        on_plates = float(scale["mass_kg"])
+        line = (f"{WEIGHED}: {scale['frames']} still frames with every foot on a plate, sd "
+                f"{scale['sd_kg']:.2f} kg")
+        if stated:
+            line += f"; {name} states {stated:.1f} kg, {100 * abs(stated / on_plates - 1):.1f} % " + (
+                "more" if stated >= on_plates else "less")
+        return on_plates, line
+    why = f"; the plates do not weigh the subject: {scale['why_not']}" if weighed and scale.get("why_not") else ""
+    if stated:
+        return stated, ("the file's " + name if skeleton["format"] == "c3d" else "the file") + why
+    return TEMPLATE_MASS, "the template's: the file has none; give --mass" + why
+
+
 def subject_from_recording(recording: Recording, height: float | None = None, mass: float | None = None,
-                           map_name: str | None = None) -> BuiltSubject:
+                           map_name: str | None = None, weighed: bool = True) -> BuiltSubject:
     """The subject a recording measures (see the module's docstring). height (m) and mass (kg) given
-    override the file's; map_name: the link map for BVH and C3D files (default: `choose_map`'s)."""
+    override the file's; weighed: the mass the file's force plates weigh the subject at standing still on
+    them (a static trial's, io/weighing.py) before the one the file states (False: the stated one, e.g.
+    PROCESSING:Bodymass); map_name: the link map for BVH and C3D files (default: `choose_map`'s)."""
     skeleton = recording.meta.get("skeleton")
     source = str(recording.meta.get("source", "the recording"))
     if not skeleton:
@@ -131,12 +159,7 @@ def subject_from_recording(recording: Recording, height: float | None = None, ma
         height, height_from = TEMPLATE_HEIGHT * ratio, f"estimated: the template's, scaled as {', '.join(measured)}"
     else:
         height, height_from = TEMPLATE_HEIGHT, "the template's: the file measures no trunk or leg"
-    if mass is not None:
-        mass_from = "given"
-    elif skeleton.get("mass"):
-        mass, mass_from = float(skeleton["mass"]), "the file"
-    else:
-        mass, mass_from = TEMPLATE_MASS, "the template's: the file has none; give --mass"
+    mass, mass_from = _mass(skeleton, mass, weighed)
     if skeleton["format"] == "c3d":
         origins = _hips(skeleton.get("hip_width"), height)
     subject = HumanSubject(height=height, mass=mass, segment_lengths=lengths, joint_origins=origins)

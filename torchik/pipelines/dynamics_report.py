@@ -129,6 +129,7 @@ def sagittal_figure(d: MotionDynamics, path: Path, kinetics: dict[tuple[str, str
         for side in SIDES:
             moment, power = d.sagittal(side, joint)
             pig = kinetics.get((side, joint))
+            pig = None if pig is None else pig.per_kg_of(d.mass)  # per kg of the model's mass, as torchik's
             spans = cycles[side] if cycles is not None else [(0, len(d.time))]
             for k, (a, b) in enumerate(spans):
                 x = 100.0 * (d.time[a:b] - d.time[a]) / (d.time[b] - d.time[a]) if cycles is not None else d.time[a:b]
@@ -268,7 +269,7 @@ def markdown(d: MotionDynamics, numbers: dict, model_name: str, subject: dict | 
     agreement with Plug-in Gait, the files and the conventions."""
     notes, lines = d.notes, []
     lines += [f"# Dynamics of {notes.get('source')}", ""]
-    who = f"{d.mass:.1f} kg"
+    who = f"{d.mass:.2f} kg"
     if subject:
         who += (f", {subject.get('height_m', float('nan')):.3f} m, from {subject.get('source')} "
                 f"(mass: {subject.get('mass_from')})")

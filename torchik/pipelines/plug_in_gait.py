@@ -21,6 +21,12 @@ lateral axis. torchik's is the joint's y degree of freedom's (the flexion axis o
 torque times its rate; its total power is the sum over the joint's degrees of freedom. The
 agreement is Pearson's r between the two over the frames where the foot stands on a plate
 (`agreement`): elsewhere neither has the ground reaction of the foot on the floor.
+
+Per kg of which mass: Plug-in Gait divides by PROCESSING:Bodymass (typed by the operator), torchik by
+its model's mass (what the static trial's plates weigh, io/weighing.py, or Bodymass, or the loop's).
+`agreement` compares the two per kg of torchik's model's mass (Plug-in Gait's values times Bodymass
+over it: the same joint's power in W, then both divided by the one mass), so a mass that differs does
+not show as a difference in W/kg. r does not depend on it.
 """
 
 from __future__ import annotations
@@ -42,11 +48,20 @@ MOMENT_SCALE = 1e-3  # Plug-in Gait's N mm/kg to N m/kg
 @dataclass(frozen=True)
 class PlugInGaitKinetics:
     """Plug-in Gait's kinetics of one side's joint over a file's frames (NaN where it computed none):
-    sagittal moment [T] (N m/kg, extensor positive), its sagittal power [T] and total power [T] (W/kg)."""
+    sagittal moment [T] (N m/kg, extensor positive), its sagittal power [T] and total power [T] (W/kg),
+    per kg of `bodymass` (the file's PROCESSING:Bodymass, kg; None where it states none)."""
 
     moment: np.ndarray
     sagittal_power: np.ndarray
     total_power: np.ndarray
+    bodymass: float | None = None
+
+    def per_kg_of(self, mass: float) -> PlugInGaitKinetics:
+        """The same kinetics per kg of `mass` (kg) instead of Bodymass (itself without a Bodymass)."""
+        if not self.bodymass:
+            return self
+        k = self.bodymass / mass
+        return PlugInGaitKinetics(self.moment * k, self.sagittal_power * k, self.total_power * k, mass)
 
 
 def plug_in_gait_kinetics(path: str | Path, recording: Recording | None = None) -> dict[tuple[str, str], PlugInGaitKinetics]:
@@ -60,6 +75,7 @@ def plug_in_gait_kinetics(path: str | Path, recording: Recording | None = None) 
     residual = c3d["data"]["meta_points"]["residuals"][0] if "residuals" in c3d["data"]["meta_points"] else None
     recording = recording or read_c3d(path, forces=False)
     segment = {name: i for i, name in enumerate(recording.links)}
+    bodymass = (recording.meta.get("skeleton") or {}).get("mass")
     out = {}
     for side in SIDES:
         s = side[0]
@@ -80,7 +96,7 @@ def plug_in_gait_kinetics(path: str | Path, recording: Recording | None = None) 
             out[(side, joint)] = PlugInGaitKinetics(
                 moment=np.where(computed, sign * M[:, 0], np.nan),
                 sagittal_power=np.where(computed, sign * M[:, 0] * extension, np.nan),
-                total_power=np.where(computed, P, np.nan))
+                total_power=np.where(computed, P, np.nan), bodymass=bodymass)
     return out
 
 
@@ -107,9 +123,11 @@ class Agreement:
 def agreement(dynamics: MotionDynamics, kinetics: dict[tuple[str, str], PlugInGaitKinetics],
               min_frames: int = 10) -> list[Agreement]:
     """For each side whose foot stands on a plate for `min_frames` frames or more and each joint Plug-in
-    Gait computed there: the agreement of torchik's powers with Plug-in Gait's (module docstring)."""
+    Gait computed there: the agreement of torchik's powers with Plug-in Gait's, both per kg of the model's
+    mass (module docstring)."""
     found = []
-    for (side, joint), pig in kinetics.items():
+    for (side, joint), given in kinetics.items():
+        pig = given.per_kg_of(dynamics.mass)
         foot = dynamics.foot(side)
         if foot is None:
             continue
