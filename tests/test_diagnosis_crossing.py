@@ -52,12 +52,12 @@ def _wrong_side(s: Subject) -> MissingDof | None:
     """The forearm's misalignment fitted and added, then the elbow's axis: the axis (None where the data
     give none)."""
     turned = [c for c in s.candidates(("misalignment",), target="RightForeArm") if c.fit is not None][0]
-    crossing._add(s, s.refit(turned) or turned, LINKS, DEFAULT_GAIN, False, 300)
+    crossing.add_tracked(s, s.refit(turned) or turned, LINKS, DEFAULT_GAIN, False, 300)
     axes = [c for c in s.candidates(("missing_dof",), target="jRightElbow") if c.fit is not None]
     if not axes:
         return None
     axis = s.refit(axes[0]) or axes[0]
-    crossing._add(s, axis, LINKS, DEFAULT_GAIN, False, 300)
+    crossing.add_tracked(s, axis, LINKS, DEFAULT_GAIN, False, 300)
     return axis
 
 

@@ -57,7 +57,7 @@ def _added(s: Subject, kind: str, target: str):
     found = [c for c in s.candidates((kind,), target=target) if c.fit is not None]
     assert found, f"the data give a {kind} at {target}"
     effect = s.refit(found[0]) or found[0]
-    crossing._add(s, effect, LINKS, DEFAULT_GAIN, False, 300)
+    crossing.add_tracked(s, effect, LINKS, DEFAULT_GAIN, False, 300)
     return effect
 
 

@@ -171,12 +171,12 @@ def corrected_wrenches(wrenches: np.ndarray, plates: np.ndarray, names: tuple[st
     out = wrenches.copy()
     level = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)  # the fit's plates' normal: level plates
     kept = {e.name: e for e in fit.effects if e.kind == "cop"}
+    known = torch.as_tensor(np.nan_to_num(plates))
     for p, name in enumerate(names):
         e = kept.get(f"{name} centre of pressure")
         if e is None:
             continue
         effect = cop_effect(p, level, name)
-        known = torch.as_tensor(np.nan_to_num(plates))
         undone = corrected_plates(known, [(effect, torch.tensor(e.value))], rate, 0.0).numpy()
         on = (owner[:, p] >= 0) & np.isfinite(plates[:, p]).all(-1)
         out[on, owner[on, p], 3:] += (undone - plates)[on, p, 3:]

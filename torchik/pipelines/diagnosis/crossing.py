@@ -40,7 +40,7 @@ from .result import Step, errors
 from .subject import Subject, analyse_subjects
 
 
-def _rebuilt(s: Subject, leave_out: Sequence[Effect]) -> Subject:
+def rebuilt(s: Subject, leave_out: Sequence[Effect]) -> Subject:
     """Subject s from its source with every kept effect but `leave_out` (their steps kept, in order)."""
     assert s.source is not None, "set by the loop"
     recording, urdf = s.source
@@ -56,7 +56,7 @@ def _rebuilt(s: Subject, leave_out: Sequence[Effect]) -> Subject:
     return v
 
 
-def _fitted(v: Subject, kind: str, target: str, threshold: float, links) -> tuple[Effect | None, str]:
+def fitted(v: Subject, kind: str, target: str, threshold: float, links) -> tuple[Effect | None, str]:
     """The candidate of `kind` on `target` fitted on v's current analysis and refitted on all of it,
     when it is significant, at or above its floor and plausible; else None and why not."""
     noise = noise_floor(*v.current)
@@ -73,7 +73,7 @@ def _fitted(v: Subject, kind: str, target: str, threshold: float, links) -> tupl
     return (None, f"implausible: {why}") if why else (final, "")
 
 
-def _add(v: Subject, effect: Effect, links, gain: float, progress: bool, max_samples: int) -> None:
+def add_tracked(v: Subject, effect: Effect, links, gain: float, progress: bool, max_samples: int) -> None:
     before = errors(*v.current)
     v.add(effect)
     analyse_subjects([v], links, gain, progress, max_samples)
@@ -100,17 +100,17 @@ def _moved(s: Subject, first: Misalignment, axis: MissingDof, other: str, links,
            progress: bool, max_samples: int, say: Callable[[str], None]) -> bool:
     """other_side's try of `other`'s sensor turned in place of `first`'s: adopted into s where the axis no
     longer stands. Returns whether it was."""
-    v = _rebuilt(s, (first, axis))
+    v = rebuilt(s, (first, axis))
     analyse_subjects([v], links, gain, progress, max_samples)
-    moved, why = _fitted(v, "misalignment", other, threshold, links)
+    moved, why = fitted(v, "misalignment", other, threshold, links)
     if moved is None:
         say(f"the axis at {axis.target} stays: a misalignment of {other} in place of {first.target}'s does not fit ({why})")
         return False
-    _add(v, moved, links, gain, progress, max_samples)
-    again, _ = _fitted(v, "misalignment", first.target, threshold, links)
+    add_tracked(v, moved, links, gain, progress, max_samples)
+    again, _ = fitted(v, "misalignment", first.target, threshold, links)
     if again is not None:
-        _add(v, again, links, gain, progress, max_samples)
-    still, why_not = _fitted(v, "missing_dof", axis.target, threshold, links)
+        add_tracked(v, again, links, gain, progress, max_samples)
+    still, why_not = fitted(v, "missing_dof", axis.target, threshold, links)
     if still is not None:
         say(f"the axis at {axis.target} stays: with {other}'s sensor turned instead of {first.target}'s, it is "
             f"still significant")

@@ -28,13 +28,11 @@ from typing import Callable
 import torch
 
 from ...method import so3
-from .crossing import _add, _fitted, _rebuilt
+from .crossing import add_tracked, fitted, rebuilt
 from .joints import JointLimit, joint_groups
 from .placement import Misalignment
-from .result import errors
+from .result import WORSE, errors
 from .subject import Subject, analyse_subjects
-
-WORSE = 1e-3  # as the loop's: a turn that raises the tracking error by more than this share is no better
 
 
 def limit_as_turn(s: Subject, limit: JointLimit, links, gain: float, threshold: float, progress: bool,
@@ -80,10 +78,10 @@ def _turned(s: Subject, limit: JointLimit, kept: Misalignment, side: float, link
     C = so3.exp(delta * axis) @ torch.as_tensor(kept.rotation(), dtype=axis.dtype)
     turn = Misalignment("misalignment", link, dict(kept.params, rotation_vector=so3.log(C).tolist()),
                         dict(kept.stderr), kept.n_params, kept.fit)
-    v = _rebuilt(s, (limit, kept))
+    v = rebuilt(s, (limit, kept))
     analyse_subjects([v], links, gain, progress, max_samples)
-    _add(v, turn, links, gain, progress, max_samples)
-    still, why_not = _fitted(v, "joint_limit", limit.target, threshold, links)
+    add_tracked(v, turn, links, gain, progress, max_samples)
+    still, why_not = fitted(v, "joint_limit", limit.target, threshold, links)
     before, after = errors(*s.current).overall["mnte"], errors(*v.current).overall["mnte"]
     if still is not None or after > before * (1.0 + WORSE):
         say(f"the limit of {limit.target} stays: with {link}'s sensor turned by {math.degrees(delta):+.1f} deg about its "

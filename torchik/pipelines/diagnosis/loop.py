@@ -61,11 +61,10 @@ from . import (
 from .analysis import DEFAULT_GAIN, joint_summary, link_summary, noise_floor
 from .candidates import KINDS
 from .effect import SIGNIFICANT, Effect
-from .result import Diagnosis, Errors, Step, errors
+from .result import WORSE, Diagnosis, Errors, Step, errors
 from .subject import Subject, analyse_subjects
 
 FAMILIES = ("gyro", "placement", "joints", "position")
-WORSE = 1e-3  # an effect that raises its error by more than this share once re-tracked is taken back
 NOISE_SHARE = 0.8  # the noise accounts for this share of what remains: the residual is consistent with it
 def _choose(s: Subject, kinds, threshold: float, first: bool, gain: float) -> list[Effect]:
     """The significant candidates of subject s that explain disjoint residuals, refitted on all the

@@ -46,6 +46,9 @@ class Errors:
                                                     for n, m, r in zip(self.links, self.mnte, self.rmse)})
 
 
+WORSE = 1e-3  # an effect that raises its error by more than this share once re-tracked is taken back (or not taken)
+
+
 def errors(analysis: Analysis, b: int, transient: float = 1.0) -> Errors:
     """The tracking errors of subject b against its (current, corrected) measurements."""
     time = analysis.time

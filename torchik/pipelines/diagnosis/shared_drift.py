@@ -8,7 +8,7 @@ in that gyro's stream, which cancels the disagreement: four parameters for the o
 has. Where a kept drift of the unaware kind and a kept gyro bias share a sensor, the pair is tried,
 where the bias' part about the vertical is the drift's rate in size, as one shared drift, fitted on
 the recording without either, and kept in their place where the tracking errors it acts on
-(orientations and angular velocities) are not worse (loop.WORSE).
+(orientations and angular velocities) are not worse (result.WORSE).
 """
 
 from __future__ import annotations
