@@ -46,6 +46,7 @@ import torch
 from ...io.recording import Recording
 from ...method.kinematics import KinematicModel
 from . import (
+    axis_drift,
     contribution,
     crossing,
     elimination,
@@ -53,6 +54,7 @@ from . import (
     jointfit,
     joints,
     limit_turn,
+    neighbour,
     placement,
     preference,
     refinement,
@@ -331,7 +333,8 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
                               max_samples, say, lambda s, key: errors(*s.current).overall[key], WORSE)
         for s, chosen, *_ in added:  # an axis kept beside a misalignment may be that turn on the wrong side
             for axis in [e for e in chosen if isinstance(e, joints.MissingDof) and any(e is k for k in s.effects)]:
-                crossing.other_side(s, axis, links, gain, threshold, progress, max_samples, say)
+                if not crossing.other_side(s, axis, links, gain, threshold, progress, max_samples, say):
+                    axis_drift.axis_as_drift(s, axis, links, gain, threshold, progress, max_samples, say)
             for limit in [e for e in chosen if isinstance(e, joints.JointLimit) and any(e is k for k in s.effects)]:
                 limit_turn.limit_as_turn(s, limit, links, gain, threshold, progress, max_samples, say)
     if eliminate:  # the last check: each kept effect with every other in place, the last added too
@@ -339,6 +342,8 @@ def diagnose(model: KinematicModel, urdf: str, recordings: Sequence[Recording], 
         elimination.track([], found, links, gain, progress, max_samples)
         elimination.eliminate(found, links, gain, threshold, progress, max_samples, say,
                               lambda s, key: errors(*s.current).overall[key], WORSE)
+        for s in subjects:  # a turn or a drift kept on the neighbour of the sensor that has it
+            neighbour.moved_to_neighbours(s, links, gain, threshold, progress, max_samples, say)
     if eliminate:  # a drift its gyro shares named as two effects, then what changes nothing a report shows
         shared_drift.merge(subjects, links, gain, progress, max_samples, WORSE, say)
         contribution.drop_invisible(subjects, links, gain, progress, max_samples, say)
