@@ -9,19 +9,24 @@ keeps the first; the data tell the two apart only once the right one is fitted w
 in place.
 
 So once the loop has ended, each kept misalignment is tried on each tracked neighbour of its link
-that carries none: the recording without it, the misalignment fitted on the neighbour, then on the
-first link again (both sensors may be turned), re-tracked. Where the tracking error the effect acts
-on is then lower by more than CLEARLY_BETTER, the neighbour's effect replaces it. The margin is wide:
-where the two are confounded (the data see the two sensors' difference, not which one turned;
+that carries none and whose residual is still above the misalignment's floor (a degree): the
+recording without it, the misalignment fitted on the neighbour, re-tracked. Where the tracking error
+the effect acts on is then lower by more than CLEARLY_BETTER, the neighbour's effect replaces it, and
+the first link's is fitted again beside it (both sensors may be turned). The margin is wide: where
+the two are confounded (the data see the two sensors' difference, not which one turned;
 Diagnosis.confounded), the first stays.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Callable
+
+import torch
 
 from .crossing import fitted, rebuilt
 from .effect import Effect
+from .placement import MISALIGNMENT_FLOOR
 from .result import Step, errors
 from .subject import Subject, analyse_subjects
 
@@ -38,7 +43,10 @@ def moved_to_neighbours(s: Subject, links, gain: float, threshold: float, progre
         if not any(first is e for e in s.effects):  # replaced by an earlier move
             continue
         taken = {e.target for e in s.effects if e.kind == first.kind}
-        others = [n for n in s.neighbours(first.target) if n in links and n not in taken]
+        # the first's turn, fitted on its neighbour's residual, does not take it all: where the neighbour's
+        # sensor is the turned one, its residual stays above what a turn that matters leaves
+        others = [n for n in s.neighbours(first.target)
+                  if n in links and n not in taken and _residual_deg(s, n) >= MISALIGNMENT_FLOOR]
         if others and _move(s, first, others, links, gain, threshold, progress, max_samples, say):
             moved += 1
     return moved
@@ -48,23 +56,18 @@ def _move(s: Subject, first: Effect, others: list[str], links, gain: float, thre
           max_samples: int, say: Callable[[str], None]) -> bool:
     """moved_to_neighbours' try of `first` on each of `others` (the variants tracked as one batch);
     adopts the best into s where it is clearly better. Returns whether one was adopted."""
-    variants = [rebuilt(s, (first,)) for _ in others]
-    analyse_subjects(variants, links, gain, progress, max_samples)
+    without = rebuilt(s, (first,))
+    analyse_subjects([without], links, gain, progress, max_samples)
     tried = []
-    for v, other in zip(variants, others):
-        effect, why = fitted(v, first.kind, other, threshold, links)
+    for other in others:
+        effect, why = fitted(without, first.kind, other, threshold, links)
         if effect is None:
             say(f"{first.kind} at {first.target} stays: at {other} it does not fit ({why})")
         else:
-            tried.append((v, other, effect))
+            tried.append((rebuilt(s, (first,)), other, effect))
     if not tried:
         return False
-    _add_tracked([(v, effect) for v, _, effect in tried], links, gain, progress, max_samples)
-    # both sensors may be turned; a drift tried beside the same drift on the first would split one
-    # sensor's drift across a joint that cannot tell them apart (a knee, about the vertical)
-    again = [(v, fitted(v, first.kind, first.target, threshold, links)[0]) for v, *_ in tried
-             if first.kind == "misalignment"]
-    _add_tracked([(v, e) for v, e in again if e is not None], links, gain, progress, max_samples)
+    _add_tracked([(v, effect) for v, _, effect in tried], links, gain, progress, max_samples, errors(*without.current))
     before = errors(*s.current).overall[first.error]
     scored = sorted(((errors(*v.current).overall[first.error], v, other, effect) for v, other, effect in tried),
                     key=lambda t: t[0])
@@ -73,6 +76,11 @@ def _move(s: Subject, first: Effect, others: list[str], links, gain: float, thre
     after, v, other, effect = scored[0]
     if after >= before * (1 - CLEARLY_BETTER):
         return False
+    # both sensors may be turned: the first's own turn, fitted again beside the neighbour's
+    again, _ = fitted(v, first.kind, first.target, threshold, links)
+    if again is not None:
+        _add_tracked([(v, again)], links, gain, progress, max_samples, errors(*v.current))
+        after = errors(*v.current).overall[first.error]
     first.notes = "; ".join(filter(None, [first.notes, f"replaced by a {first.kind} at {other}: with it, the "
                                                        f"{first.error} went from {before:.4g} to {after:.4g}"]))
     s.rejected.append(first)
@@ -83,12 +91,22 @@ def _move(s: Subject, first: Effect, others: list[str], links, gain: float, thre
     return True
 
 
-def _add_tracked(added: list[tuple[Subject, Effect]], links, gain: float, progress: bool, max_samples: int) -> None:
-    """crossing.add_tracked for several variants at once: each effect added to its variant, the variants
-    tracked as one batch, each addition's step recorded."""
-    before = [errors(*v.current) for v, _ in added]
+def _add_tracked(added: list[tuple[Subject, Effect]], links, gain: float, progress: bool, max_samples: int,
+                 before) -> None:
+    """crossing.add_tracked for several variants at once, all of whose errors were `before`: each effect
+    added to its variant, the variants tracked as one batch, each addition's step recorded."""
     for v, effect in added:
         v.add(effect)
     analyse_subjects([v for v, _ in added], links, gain, progress, max_samples)
-    for (v, effect), b in zip(added, before):
-        v.steps.append(Step(effect, b, errors(*v.current)))
+    for v, effect in added:
+        v.steps.append(Step(effect, before, errors(*v.current)))
+
+
+def _residual_deg(s: Subject, link: str, transient: float = 1.0) -> float:
+    """deg: the rms of the angle of s's orientation residual on `link`, past the first `transient` s."""
+    analysis, b = s.current
+    i = analysis.links.index(link)
+    time = analysis.time
+    ok = analysis.valid[:, b, i] & (time >= time[0] + transient)
+    angle = torch.asin(analysis.r[ok, b, i].norm(dim=-1).clamp(max=1.0))
+    return math.degrees(float(angle.square().mean().sqrt())) if int(ok.sum()) else 0.0
