@@ -20,14 +20,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from diagnosis_path import added, tracked_subject
 
 from torchik.method import so3
-from torchik.method.kinematics import KinematicModel
 from torchik.method.models import TRACKED_LINKS, human_urdf
-from torchik.pipelines.diagnosis import axis_drift, crossing
+from torchik.pipelines.diagnosis import axis_drift
 from torchik.pipelines.diagnosis.analysis import DEFAULT_GAIN
 from torchik.pipelines.diagnosis.joints import MissingDof
-from torchik.pipelines.diagnosis.subject import Subject, analyse_subjects
 
 pytest.importorskip("pinocchio")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
@@ -44,21 +43,7 @@ def _subject(seed: int):
     urdf = human_urdf(48)
     recording, injected, info = sensor_physics.generate(seed, "tilt_filter_bias", 1, LINKS, duration=8.0,
                                                         rate=100.0, reference=None)
-    s = Subject(recording, urdf, KinematicModel.from_urdf(urdf, name="Human48"), source=(recording, urdf))
-    analyse_subjects([s], LINKS, DEFAULT_GAIN, False)
-    s.first = s.analysis
-    s.derived = s.current[0].derived[s.current[1]]
-    return s, recording, injected[0], info
-
-
-def _added(s: Subject, kind: str, target: str):
-    """The candidate of `kind` on `target` fitted and added, as the loop would."""
-    found = [c for c in s.candidates((kind,), target=target) if c.fit is not None]
-    assert found, f"the data give a {kind} at {target}"
-    effect = s.refit(found[0]) or found[0]
-    crossing.add_tracked(s, effect, LINKS, DEFAULT_GAIN, False, 300)
-    return effect
-
+    return tracked_subject(recording, urdf), recording, injected[0], info
 
 def _simulated_heading_rate(recording, info, link: str) -> float:
     """deg/s: the rate at which the link's reported heading turns against its true one (a line fitted
@@ -78,8 +63,8 @@ def _drift_rate(effect) -> float:
 def test_an_axis_at_the_wrist_below_a_biased_hand_is_the_hands_heading_drift(one_thread):
     s, recording, injected, info = _subject(HAND_SEED)
     assert injected.targets == ["RightHand"]
-    _added(s, "gyro_bias", "RightHand")
-    axis = _added(s, "missing_dof", "jRightWrist")
+    added(s, "gyro_bias", "RightHand")
+    axis = added(s, "missing_dof", "jRightWrist")
     assert axis_drift.axis_as_drift(s, axis, LINKS, DEFAULT_GAIN, 10.0, False, 300, SAY)
     assert not any(isinstance(e, MissingDof) for e in s.effects), [e.summary() for e in s.effects]
     drift = [e for e in s.effects if e.kind == "heading_drift" and e.target == "RightHand"]

@@ -25,14 +25,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from diagnosis_path import added, tracked_subject
 
-from torchik.method.kinematics import KinematicModel
 from torchik.method.models import TRACKED_LINKS, human_urdf
-from torchik.pipelines.diagnosis import crossing, limit_turn
+from torchik.pipelines.diagnosis import limit_turn
 from torchik.pipelines.diagnosis.analysis import DEFAULT_GAIN
 from torchik.pipelines.diagnosis.effect import replace, rotation_about
 from torchik.pipelines.diagnosis.joints import JointLimit
-from torchik.pipelines.diagnosis.subject import Subject, analyse_subjects
+from torchik.pipelines.diagnosis.subject import Subject
 
 pytest.importorskip("pinocchio")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
@@ -44,26 +44,11 @@ JOINT = "jLeftC7Shoulder_rotx"
 TURN = 8.0  # deg, about each of the two axes
 
 
-def _subject(recording, urdf: str) -> Subject:
-    s = Subject(recording, urdf, KinematicModel.from_urdf(urdf, name="Human48"), source=(recording, urdf))
-    analyse_subjects([s], LINKS, DEFAULT_GAIN, False)
-    s.first = s.analysis
-    s.derived = s.current[0].derived[s.current[1]]
-    return s
-
-
-def _added(s: Subject, kind: str, target: str):
-    """The candidate of `kind` on `target` fitted and added, as the loop would."""
-    found = [c for c in s.candidates((kind,), target=target) if c.fit is not None]
-    assert found, f"the data give a {kind} at {target}"
-    effect = s.refit(found[0]) or found[0]
-    crossing.add_tracked(s, effect, LINKS, DEFAULT_GAIN, False, 300)
-    return effect
 
 
 def _limit_added(s: Subject) -> JointLimit:
     """The joint's limit candidate fitted and added, as the loop would."""
-    return _added(s, "joint_limit", JOINT)
+    return added(s, "joint_limit", JOINT)
 
 
 def _joint_axis(urdf: str) -> np.ndarray:
@@ -83,12 +68,12 @@ def _turned_shoulder():
     i = recording.links.index("LeftShoulder")
     R = recording.orientation.copy()
     R[:, i] = R[:, i] @ rotation_about(turn / np.linalg.norm(turn), np.array([np.linalg.norm(turn)]))[0]
-    return _subject(replace(recording, orientation=R), urdf), axis, info["truth"]
+    return tracked_subject(replace(recording, orientation=R), urdf), axis, info["truth"]
 
 
 def test_a_strap_turned_past_a_narrow_limit_is_named_as_the_turn(one_thread):
     s, axis, truth = _turned_shoulder()
-    _added(s, "misalignment", "LeftShoulder")
+    added(s, "misalignment", "LeftShoulder")
     limit = _limit_added(s)
     assert limit.params["side"] == "lower"
     lower = math.degrees(limit.params["limit"])
@@ -120,8 +105,8 @@ def test_a_range_narrower_than_the_motion_on_both_sides_stays_a_limit(one_thread
     urdf = re.sub(rf'(<joint name="{JOINT}".*?<limit[^>]*?)lower="[^"]*" upper="[^"]*"',
                   rf'\1lower="{middle - third:.6f}" upper="{middle + third:.6f}"', human_urdf(48), flags=re.S)
     assert urdf != human_urdf(48), "the joint's limits were rewritten"
-    s = _subject(recording, urdf)
-    _added(s, "misalignment", "LeftShoulder")  # what little the noise gives: the turn the limit is tried as
+    s = tracked_subject(recording, urdf)
+    added(s, "misalignment", "LeftShoulder")  # what little the noise gives: the turn the limit is tried as
     limit = _limit_added(s)
     kept = [e.summary() for e in s.effects]
     assert not limit_turn.limit_as_turn(s, limit, LINKS, DEFAULT_GAIN, 10.0, False, 300, lambda _: None)

@@ -19,13 +19,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from diagnosis_path import added, tracked_subject
 
-from torchik.method.kinematics import KinematicModel
 from torchik.method.models import TRACKED_LINKS, human_urdf
-from torchik.pipelines.diagnosis import crossing, neighbour
+from torchik.pipelines.diagnosis import neighbour
 from torchik.pipelines.diagnosis.analysis import DEFAULT_GAIN
 from torchik.pipelines.diagnosis.effect import replace, rotation_about
-from torchik.pipelines.diagnosis.subject import Subject, analyse_subjects
+from torchik.pipelines.diagnosis.subject import Subject
 
 pytest.importorskip("pinocchio")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
@@ -43,26 +43,11 @@ def _subject(turn_deg: float) -> Subject:
     i = recording.links.index("T12")
     R = recording.orientation.copy()
     R[:, i] = R[:, i] @ rotation_about(np.array([0.0, 0.0, 1.0]), np.array([math.radians(turn_deg)]))[0]
-    s = Subject(replace(recording, orientation=R), urdf, KinematicModel.from_urdf(urdf, name="Human48"),
-                source=(replace(recording, orientation=R), urdf))
-    analyse_subjects([s], LINKS, DEFAULT_GAIN, False)
-    s.first = s.analysis
-    s.derived = s.current[0].derived[s.current[1]]
-    return s
-
-
-def _forced(s: Subject, target: str):
-    """The misalignment candidate of `target` fitted and added, as the loop would."""
-    found = [c for c in s.candidates(("misalignment",), target=target) if c.fit is not None]
-    assert found, f"the data give a misalignment at {target}"
-    effect = s.refit(found[0]) or found[0]
-    crossing.add_tracked(s, effect, LINKS, DEFAULT_GAIN, False, 300)
-    return effect
-
+    return tracked_subject(replace(recording, orientation=R), urdf)
 
 def test_a_turn_kept_on_l3_moves_to_the_turned_t12(one_thread):
     s = _subject(TURN)
-    _forced(s, "L3")
+    added(s, "misalignment", "L3")
     assert neighbour.moved_to_neighbours(s, LINKS, DEFAULT_GAIN, 10.0, False, 300, SAY) == 1
     turned = {e.target: e for e in s.effects if e.kind == "misalignment"}
     assert "T12" in turned and "L3" not in turned, [e.summary() for e in s.effects]
@@ -72,7 +57,7 @@ def test_a_turn_kept_on_l3_moves_to_the_turned_t12(one_thread):
 
 def test_without_a_turn_nothing_moves(one_thread):
     s = _subject(0.0)
-    _forced(s, "L3")
+    added(s, "misalignment", "L3")
     kept = [e.summary() for e in s.effects]
     assert neighbour.moved_to_neighbours(s, LINKS, DEFAULT_GAIN, 10.0, False, 300, SAY) == 0
     assert [e.summary() for e in s.effects] == kept

@@ -22,10 +22,7 @@ from __future__ import annotations
 import math
 from typing import Callable
 
-import torch
-
 from .crossing import add_tracked, fitted, rebuilt
-from .effect import Effect
 from .gyro import GyroBias
 from .joints import MissingDof
 from .subject import Subject, analyse_subjects
@@ -42,7 +39,9 @@ def axis_as_drift(s: Subject, axis: MissingDof, links, gain: float, threshold: f
     for side in (x for x in sides if x not in drifting and x in links):
         v = rebuilt(s, (axis,))
         analyse_subjects([v], links, gain, progress, max_samples)
-        drift, why = _drift(v, side, threshold)
+        # not calibrated on how its gains scatter: a drift carried into an arm's chain shows at the elbow
+        # more in some postures than in others; whether the axis is still needed with it decides
+        drift, why = fitted(v, "heading_drift", side, threshold, links, calibrated=False)
         if drift is None:
             say(f"the axis at {axis.target} stays: a heading drift of {side} in its place does not fit ({why})")
             continue
@@ -64,20 +63,3 @@ def axis_as_drift(s: Subject, axis: MissingDof, links, gain: float, threshold: f
         return True
     return False
 
-
-def _drift(v: Subject, side: str, threshold: float) -> tuple[Effect | None, str]:
-    """The heading drift of `side` fitted on v's current analysis and refitted on all of it where its
-    held-out score is above `threshold`, it is at or above its floor and plausible; else None and why
-    not. Its score is not calibrated on how its gains scatter across stretches of time
-    (Score.calibrated): a drift carried into an arm's chain shows at the elbow more in some postures
-    than in others, and whether the axis is still needed with it in place is the test that decides."""
-    found = [c for c in v.candidates(("heading_drift",), target=side) if c.fit is not None]
-    if not found:
-        return None, "it cannot be fitted"
-    c = found[0]
-    dt = float(torch.diff(v.current[0].time).median())
-    why = (f"score {c.score:.1f}, not above {threshold:g}" if c.score <= threshold else c.below_floor(dt))
-    if why:
-        return None, why
-    final, why = v.adopted(c)
-    return (None, f"implausible: {why}") if why else (final, "")

@@ -36,7 +36,7 @@ from .analysis import noise_floor
 from .effect import Effect
 from .joints import MissingDof
 from .placement import Misalignment
-from .result import Step, errors
+from .result import Errors, Step, errors
 from .subject import Subject, analyse_subjects
 
 
@@ -56,16 +56,21 @@ def rebuilt(s: Subject, leave_out: Sequence[Effect]) -> Subject:
     return v
 
 
-def fitted(v: Subject, kind: str, target: str, threshold: float, links) -> tuple[Effect | None, str]:
+def fitted(v: Subject, kind: str, target: str, threshold: float, links, calibrated: bool = True
+           ) -> tuple[Effect | None, str]:
     """The candidate of `kind` on `target` fitted on v's current analysis and refitted on all of it,
-    when it is significant, at or above its floor and plausible; else None and why not."""
+    when it is significant, at or above its floor and plausible; else None and why not. calibrated:
+    significant as Effect.significant says (False: its held-out score above `threshold` suffices, not
+    corrected for how its gains scatter across stretches of time)."""
     noise = noise_floor(*v.current)
     found = [c for c in v.candidates((kind,), target=target) if c.fit is not None]
     if not found:
         return None, "it cannot be fitted"
     c = found[0]
     dt = float(torch.diff(v.current[0].time).median())
-    why = (c.significant(threshold, noise.axis_rms)
+    significant = (c.significant(threshold, noise.axis_rms) if calibrated
+                   else f"score {c.score:.1f}, not above {threshold:g}" if c.score <= threshold else "")
+    why = (significant
            or elimination.hanger_on(c, v.effects, v.model, v.urdf, links, noise.axis_rms) or c.below_floor(dt))
     if why:
         return None, why
@@ -74,10 +79,19 @@ def fitted(v: Subject, kind: str, target: str, threshold: float, links) -> tuple
 
 
 def add_tracked(v: Subject, effect: Effect, links, gain: float, progress: bool, max_samples: int) -> None:
-    before = errors(*v.current)
-    v.add(effect)
-    analyse_subjects([v], links, gain, progress, max_samples)
-    v.steps.append(Step(effect, before, errors(*v.current)))
+    """`effect` added to v, v tracked again and the step recorded."""
+    add_tracked_all([(v, effect)], errors(*v.current), links, gain, progress, max_samples)
+
+
+def add_tracked_all(added: Sequence[tuple[Subject, Effect]], before: Errors, links, gain: float, progress: bool,
+                    max_samples: int) -> None:
+    """Each effect added to its subject, whose errors were `before` (the subjects rebuilt alike, not
+    yet tracked), the subjects tracked as one batch, each step recorded."""
+    for v, effect in added:
+        v.add(effect)
+    analyse_subjects([v for v, _ in added], links, gain, progress, max_samples)
+    for v, effect in added:
+        v.steps.append(Step(effect, before, errors(*v.current)))
 
 
 def other_side(s: Subject, axis: MissingDof, links, gain: float, threshold: float, progress: bool, max_samples: int,

@@ -19,40 +19,37 @@ Diagnosis.confounded), the first stays.
 
 from __future__ import annotations
 
-import math
 from typing import Callable
 
-import torch
-
-from .crossing import fitted, rebuilt
-from .effect import Effect
-from .placement import MISALIGNMENT_FLOOR
-from .result import Step, errors
+from .analysis import link_summary
+from .crossing import add_tracked, add_tracked_all, fitted, rebuilt
+from .placement import MISALIGNMENT_FLOOR, Misalignment
+from .result import errors
 from .subject import Subject, analyse_subjects
 
-KINDS = ("misalignment",)  # heading drifts too, by the same code; on the study's recordings none moved
 CLEARLY_BETTER = 0.05  # the share by which the neighbour's version must lower the error to replace the first
 
 
 def moved_to_neighbours(s: Subject, links, gain: float, threshold: float, progress: bool, max_samples: int,
                         say: Callable[[str], None]) -> int:
-    """Try each kept effect of KINDS of subject s on its link's neighbours (module
-    docstring) and adopt the clearly better. Returns how many were moved."""
+    """Try each kept misalignment of subject s on its link's neighbours (module docstring) and adopt
+    the clearly better. Returns how many were moved."""
     moved = 0
-    for first in [e for e in s.effects if e.kind in KINDS]:
+    for first in [e for e in s.effects if isinstance(e, Misalignment)]:
         if not any(first is e for e in s.effects):  # replaced by an earlier move
             continue
-        taken = {e.target for e in s.effects if e.kind == first.kind}
+        taken = {e.target for e in s.effects if isinstance(e, Misalignment)}
         # the first's turn, fitted on its neighbour's residual, does not take it all: where the neighbour's
         # sensor is the turned one, its residual stays above what a turn that matters leaves
+        residual = {row["link"]: row.get("rms_deg", 0.0) for row in link_summary(*s.current)}
         others = [n for n in s.neighbours(first.target)
-                  if n in links and n not in taken and _residual_deg(s, n) >= MISALIGNMENT_FLOOR]
+                  if n in links and n not in taken and residual.get(n, 0.0) >= MISALIGNMENT_FLOOR]
         if others and _move(s, first, others, links, gain, threshold, progress, max_samples, say):
             moved += 1
     return moved
 
 
-def _move(s: Subject, first: Effect, others: list[str], links, gain: float, threshold: float, progress: bool,
+def _move(s: Subject, first: Misalignment, others: list[str], links, gain: float, threshold: float, progress: bool,
           max_samples: int, say: Callable[[str], None]) -> bool:
     """moved_to_neighbours' try of `first` on each of `others` (the variants tracked as one batch);
     adopts the best into s where it is clearly better. Returns whether one was adopted."""
@@ -67,7 +64,8 @@ def _move(s: Subject, first: Effect, others: list[str], links, gain: float, thre
             tried.append((rebuilt(s, (first,)), other, effect))
     if not tried:
         return False
-    _add_tracked([(v, effect) for v, _, effect in tried], links, gain, progress, max_samples, errors(*without.current))
+    add_tracked_all([(v, effect) for v, _, effect in tried], errors(*without.current), links, gain, progress,
+                    max_samples)
     before = errors(*s.current).overall[first.error]
     scored = sorted(((errors(*v.current).overall[first.error], v, other, effect) for v, other, effect in tried),
                     key=lambda t: t[0])
@@ -79,7 +77,7 @@ def _move(s: Subject, first: Effect, others: list[str], links, gain: float, thre
     # both sensors may be turned: the first's own turn, fitted again beside the neighbour's
     again, _ = fitted(v, first.kind, first.target, threshold, links)
     if again is not None:
-        _add_tracked([(v, again)], links, gain, progress, max_samples, errors(*v.current))
+        add_tracked(v, again, links, gain, progress, max_samples)
         after = errors(*v.current).overall[first.error]
     first.notes = "; ".join(filter(None, [first.notes, f"replaced by a {first.kind} at {other}: with it, the "
                                                        f"{first.error} went from {before:.4g} to {after:.4g}"]))
@@ -90,23 +88,3 @@ def _move(s: Subject, first: Effect, others: list[str], links, gain: float, thre
     say(f"{first.kind} at {first.target} moved to {other} ({first.error} {before:.4g} -> {after:.4g})")
     return True
 
-
-def _add_tracked(added: list[tuple[Subject, Effect]], links, gain: float, progress: bool, max_samples: int,
-                 before) -> None:
-    """crossing.add_tracked for several variants at once, all of whose errors were `before`: each effect
-    added to its variant, the variants tracked as one batch, each addition's step recorded."""
-    for v, effect in added:
-        v.add(effect)
-    analyse_subjects([v for v, _ in added], links, gain, progress, max_samples)
-    for v, effect in added:
-        v.steps.append(Step(effect, before, errors(*v.current)))
-
-
-def _residual_deg(s: Subject, link: str, transient: float = 1.0) -> float:
-    """deg: the rms of the angle of s's orientation residual on `link`, past the first `transient` s."""
-    analysis, b = s.current
-    i = analysis.links.index(link)
-    time = analysis.time
-    ok = analysis.valid[:, b, i] & (time >= time[0] + transient)
-    angle = torch.asin(analysis.r[ok, b, i].norm(dim=-1).clamp(max=1.0))
-    return math.degrees(float(angle.square().mean().sqrt())) if int(ok.sum()) else 0.0
