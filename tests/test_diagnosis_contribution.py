@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 import pytest
+import torch
 from conftest import human48_walk
 
 from torchik.method.kinematics import KinematicModel
@@ -63,3 +64,9 @@ def test_an_effect_that_changes_nothing_a_report_shows_is_negligible_and_taken_o
     assert s.negligible[("joint_limit", joint)] is widened
     assert "nothing a report shows changes" in widened.notes and widened.params["contribution_deg"] < 0.1
     assert s.urdf == urdf and said  # rebuilt without it, and said so
+    # its analysis is the one tracked without the effect already: as tracking the rebuilt subject again
+    again = Subject(s.recording, s.urdf, s.model)
+    analyse_subjects([again], LINKS, DEFAULT_GAIN, False, 50)
+    (reused, b), (fresh, c) = s.current, again.current
+    assert torch.allclose(reused.s[:, b], fresh.s[:, c], atol=1e-7)
+    assert torch.allclose(reused.r[:, b], fresh.r[:, c], atol=1e-7)

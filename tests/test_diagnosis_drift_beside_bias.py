@@ -7,7 +7,11 @@ The loop's path is built by hand: the bias fitted and added, then what the loop 
 on the study's recordings, an axis at the wrist below the biased hand.
 
 Property: the axis is replaced by the hand's heading drifting, at the rate its simulated orientations
-drift against the true ones (within 25 %). The truth is the simulation's, not a diagnosis equation: the
+drift against the true ones (within 25 %). So too an axis at the elbow below a biased upper arm, whose
+drift the shoulder and the elbow share out: there the carried projection's rate is far off (seed 7320:
+-4.4 deg/s fitted, -1.46 simulated) or not significant (7388), and the rate the orientations show
+(axis_drift._other_projection) takes the axis' place, of the kind the biased gyro makes (it shares
+the drift). The truth is the simulation's, not a diagnosis equation: the
 filter's heading error is measured on its output against the segment's true orientation.
 """
 
@@ -36,6 +40,7 @@ LINKS = TRACKED_LINKS["human48"]
 # neither the tuning seeds (0-199, 600-609) nor the studies' (1000-1899, 2000-2899, 3000-3899); drawn
 # for the link its one biased sensor is on, the right hand
 HAND_SEED = 7348
+UPPER_ARM_SEEDS = {7320: "LeftUpperArm", 7388: "RightUpperArm"}  # drawn alike, for their upper arms
 SAY = lambda _: None  # noqa: E731
 
 
@@ -70,4 +75,19 @@ def test_an_axis_at_the_wrist_below_a_biased_hand_is_the_hands_heading_drift(one
     drift = [e for e in s.effects if e.kind == "heading_drift" and e.target == "RightHand"]
     assert len(drift) == 1, [e.summary() for e in s.effects]
     truth = _simulated_heading_rate(recording, info, "RightHand")
+    assert abs(_drift_rate(drift[0]) - truth) < 0.25 * abs(truth), (drift[0].summary(), truth)
+
+
+@pytest.mark.parametrize("seed", sorted(UPPER_ARM_SEEDS))
+def test_an_axis_at_the_elbow_below_a_biased_upper_arm_is_the_upper_arms_heading_drift(one_thread, seed):
+    arm = UPPER_ARM_SEEDS[seed]
+    s, recording, injected, info = _subject(seed)
+    assert injected.targets == [arm] and not injected.extra["compensated"]
+    added(s, "gyro_bias", arm)
+    axis = added(s, "missing_dof", arm.replace("UpperArm", "Elbow").replace("Right", "jRight").replace("Left", "jLeft"))
+    assert axis_drift.axis_as_drift(s, axis, LINKS, DEFAULT_GAIN, 10.0, False, 300, SAY)
+    assert not any(isinstance(e, MissingDof) for e in s.effects), [e.summary() for e in s.effects]
+    drift = [e for e in s.effects if e.kind == "heading_drift" and e.target == arm]
+    assert len(drift) == 1 and drift[0].params["gyro_shares"], [e.summary() for e in s.effects]
+    truth = _simulated_heading_rate(recording, info, arm)
     assert abs(_drift_rate(drift[0]) - truth) < 0.25 * abs(truth), (drift[0].summary(), truth)

@@ -19,10 +19,15 @@ and stays.
 
 from __future__ import annotations
 
+import copy
 import math
 from typing import Callable
 
+import torch
+
 from .crossing import add_tracked, fitted, rebuilt
+from .drift import HeadingDrift
+from .effect import Effect
 from .gyro import GyroBias
 from .joints import MissingDof
 from .subject import Subject, analyse_subjects
@@ -43,23 +48,70 @@ def axis_as_drift(s: Subject, axis: MissingDof, links, gain: float, threshold: f
         # more in some postures than in others; whether the axis is still needed with it decides
         drift, why = fitted(v, "heading_drift", side, threshold, links, calibrated=False)
         if drift is None:
-            say(f"the axis at {axis.target} stays: a heading drift of {side} in its place does not fit ({why})")
+            say(f"a heading drift of {side} in place of the axis at {axis.target} does not fit ({why})")
+        else:
+            add_tracked(v, drift, links, gain, progress, max_samples)
+            still, why_not = fitted(v, "missing_dof", axis.target, threshold, links)
+            if still is None:
+                _adopt(s, v, axis, drift, side, biased, why_not, say)
+                return True
+            say(f"the axis at {axis.target} stays: with {drift.summary()}, it is still significant "
+                f"(score {still.score:.0f})")
+        v, moved = _other_projection(s, axis, side, None if drift is None else bool(drift.params.get("gyro_shares")),
+                                     links, gain, progress, max_samples)
+        if moved is None:
             continue
-        add_tracked(v, drift, links, gain, progress, max_samples)
         still, why_not = fitted(v, "missing_dof", axis.target, threshold, links)
         if still is not None:
-            say(f"the axis at {axis.target} stays: with {side}'s heading drifting, it is still significant")
+            say(f"the axis at {axis.target} stays: with {moved.summary()} (the rate the other kind's "
+                f"projection fits), it is still significant (score {still.score:.0f})")
             continue
-        axis.notes = "; ".join(filter(None, [axis.notes, f"replaced by a heading drift of {side}: with it, the axis "
-                                                         f"is no longer needed ({why_not})"]))
-        s.rejected.append(axis)
-        drift.notes = "; ".join(filter(None, [drift.notes, (
-            f"in place of a missing axis at {axis.target} (moving over "
-            f"{', '.join(f'{math.degrees(x):.1f}' for x in axis.params['angle_range'])} deg)"
-            + (": this sensor's gyro is biased, and a filter without a heading reference integrates the bias into "
-               "its heading" if side in biased else ""))]))
-        s.recording, s.urdf, s.model, s.analysis, s.steps = v.recording, v.urdf, v.model, v.analysis, v.steps
-        say(f"the axis at {axis.target} replaced by {drift.summary()}")
+        _adopt(s, v, axis, moved, side, biased, why_not, say)
         return True
     return False
 
+
+def _adopt(s: Subject, v: Subject, axis: MissingDof, drift: Effect, side: str, biased: set[str], why_not: str,
+           say: Callable[[str], None]) -> None:
+    """v, the subject without `axis` and with `side`'s `drift`, taken as s."""
+    axis.notes = "; ".join(filter(None, [axis.notes, f"replaced by a heading drift of {side}: with it, the axis "
+                                                     f"is no longer needed ({why_not})"]))
+    s.rejected.append(axis)
+    drift.notes = "; ".join(filter(None, [drift.notes, (
+        f"in place of a missing axis at {axis.target} (moving over "
+        f"{', '.join(f'{math.degrees(x):.1f}' for x in axis.params['angle_range'])} deg)"
+        + (": this sensor's gyro is biased, and a filter without a heading reference integrates the bias into "
+           "its heading" if side in biased else ""))]))
+    s.recording, s.urdf, s.model, s.analysis, s.steps = v.recording, v.urdf, v.model, v.analysis, v.steps
+    say(f"the axis at {axis.target} replaced by {drift.summary()}")
+
+
+def _other_projection(s: Subject, axis: MissingDof, side: str, shared: bool | None, links, gain: float,
+                      progress: bool, max_samples: int) -> tuple[Subject, Effect | None]:
+    """The subject without `axis` and with `side`'s drift at the rate the other kind's fit gives it
+    (`shared`: the kind fitted first; None where none could be, and the drift its gyro does not share is
+    fitted), of the kind its own gyro says, tracked; None for the drift where that kind cannot be
+    fitted or its rate is under the drift's floor.
+
+    The two kinds differ in whether the tracker's velocity target carries the drift (drift.fit_drifts),
+    but at the tracker's gain a drift of a degree a second lags its orientation target by rate / K, a
+    few hundredths of a degree: either way the tracker follows the orientations. Where an arm's chain
+    spreads the turn over the shoulder and the elbow, the carried projection can fit the rate far off:
+    tilt_filter_bias 4006, an upper arm's gyro biased by 2.6 deg/s through a 6-axis filter, its heading
+    drifting at 0.86-0.90 deg/s (simulated): fitted 2.25 as carried, 0.83 on the orientations alone,
+    with which the elbow's axis is no longer needed. The kind stays the gyro's word: its disagreement
+    with its orientations about the vertical (own_gyro_score above 0: e = -rate z, the gyro does not
+    share it)."""
+    v = rebuilt(s, (axis,))
+    analyse_subjects([v], links, gain, progress, max_samples)
+    other = HeadingDrift("heading_drift", side, dict(gyro_shares=shared is not None and not shared))
+    found = [c for c in v.candidates(("heading_drift",), target=side, like=other) if c.fit is not None]
+    if not found or found[0].below_floor(float(torch.diff(v.current[0].time).median())):
+        return v, None
+    moved, _ = v.adopted(found[0])
+    moved = copy.deepcopy(moved)
+    derived = bool(moved.params.get("derived"))
+    shares = derived or float(moved.params.get("own_gyro_score", 0.0)) <= 0.0
+    moved.params.update(gyro_shares=shares, tilt=shares and not derived)
+    add_tracked(v, moved, links, gain, progress, max_samples)
+    return v, moved

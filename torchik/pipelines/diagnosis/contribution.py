@@ -25,9 +25,10 @@ from typing import Callable, NamedTuple, Sequence
 import torch
 
 from ...method.kinematics import KinematicModel
+from ...method.state import Trajectory
 from ..evaluation import link_motion
 from . import elimination
-from .analysis import Analysis, orientation_residual, sequence_of, track
+from .analysis import Analysis, analyse, orientation_residual, sequence_of, track
 from .chunks import Chunking
 from .subject import Subject, analyse_subjects
 
@@ -55,6 +56,7 @@ class Tracked(NamedTuple):
     base_rotation: torch.Tensor
     links: tuple[str, ...]
     angle: torch.Tensor
+    trajectory: Trajectory | None = None  # the run itself, a batch of one (`tracked`'s)
 
 
 def of_analysis(analysis: Analysis, b: int) -> Tracked:
@@ -107,8 +109,14 @@ def tracked(variants: Sequence[Subject], links, gain: float, progress: bool) -> 
         angle = torch.where(valid, torch.asin(r.norm(dim=-1).clamp(max=1.0)), torch.nan)
         for b, k in enumerate(members):
             out[k] = Tracked(sequence.time, model.joint_names, trajectory.joint_positions[:, b],
-                             trajectory.base_rotation[:, b], links, angle[:, b])
+                             trajectory.base_rotation[:, b], links, angle[:, b], _one(trajectory, b))
     return [t for t in out if t is not None]
+
+
+def _one(t: Trajectory, b: int) -> Trajectory:
+    """Subject b of a batch's trajectory, as a batch of one."""
+    return Trajectory(t.time, t.base_position[:, b:b + 1], t.base_rotation[:, b:b + 1], t.joint_positions[:, b:b + 1],
+                      t.velocity[:, b:b + 1])
 
 
 def drop_invisible(subjects: Sequence[Subject], links, gain: float, progress: bool, max_samples: int,
@@ -122,6 +130,7 @@ def drop_invisible(subjects: Sequence[Subject], links, gain: float, progress: bo
         return
     runs = tracked([v for _, _, v in found], links, gain, progress)
     moved: dict[int, Subject] = {}
+    dropped: dict[int, list[Tracked]] = {}  # per subject, the runs without each effect it loses
     for (s, effect, _), run in zip(found, runs):
         size, where = change(of_analysis(*s.current), run)
         effect.params["contribution_deg"] = size
@@ -133,9 +142,17 @@ def drop_invisible(subjects: Sequence[Subject], links, gain: float, progress: bo
         s.negligible[(effect.kind, effect.target)] = effect
         s.steps = [st for st in s.steps if st.effect is not effect]
         moved[id(s)] = s
+        dropped.setdefault(id(s), []).append(run)
         say(f"{effect.kind} at {effect.target} taken out as negligible ({why})")
+    again = []
     for s in moved.values():
         assert s.source is not None, "set by the loop"
         s.recording, s.urdf = elimination.without(*s.source, s.effects, None)
         s.model = KinematicModel.from_urdf(s.urdf, name=s.model.name, dtype=s.model.dtype)
-    analyse_subjects(list(moved.values()), links, gain, progress, max_samples)
+        run = dropped[id(s)][0]
+        if len(dropped[id(s)]) == 1 and run.trajectory is not None:
+            # without its one negligible effect the subject is that variant, tracked already
+            s.analysis = (analyse(s.model, [s.recording], links, run.trajectory, gain, max_samples), 0)
+        else:
+            again.append(s)
+    analyse_subjects(again, links, gain, progress, max_samples)
