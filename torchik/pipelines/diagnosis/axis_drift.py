@@ -20,12 +20,11 @@ and stays.
 from __future__ import annotations
 
 import copy
-import math
 from typing import Callable
 
 import torch
 
-from .crossing import add_tracked, fitted, rebuilt
+from .crossing import add_tracked, fitted, moving_over, rebuilt, take
 from .drift import HeadingDrift
 from .effect import Effect
 from .gyro import GyroBias
@@ -78,11 +77,10 @@ def _adopt(s: Subject, v: Subject, axis: MissingDof, drift: Effect, side: str, b
                                                      f"is no longer needed ({why_not})"]))
     s.rejected.append(axis)
     drift.notes = "; ".join(filter(None, [drift.notes, (
-        f"in place of a missing axis at {axis.target} (moving over "
-        f"{', '.join(f'{math.degrees(x):.1f}' for x in axis.params['angle_range'])} deg)"
+        f"in place of {moving_over(axis)}"
         + (": this sensor's gyro is biased, and a filter without a heading reference integrates the bias into "
            "its heading" if side in biased else ""))]))
-    s.recording, s.urdf, s.model, s.analysis, s.steps = v.recording, v.urdf, v.model, v.analysis, v.steps
+    take(s, v)
     say(f"the axis at {axis.target} replaced by {drift.summary()}")
 
 

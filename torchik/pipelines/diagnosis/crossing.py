@@ -78,6 +78,17 @@ def fitted(v: Subject, kind: str, target: str, threshold: float, links, calibrat
     return (None, f"implausible: {why}") if why else (final, "")
 
 
+def moving_over(axis: MissingDof) -> str:
+    """'a missing axis at J (moving over a, b deg)': what a note says of the axis an effect replaced."""
+    low, high = (math.degrees(x) for x in axis.params["angle_range"])
+    return f"a missing axis at {axis.target} (moving over {low:.1f}, {high:.1f} deg)"
+
+
+def take(s: Subject, v: Subject) -> None:
+    """s becomes its variant v (recording, URDF, model, analysis and steps)."""
+    s.recording, s.urdf, s.model, s.analysis, s.steps = v.recording, v.urdf, v.model, v.analysis, v.steps
+
+
 def add_tracked(v: Subject, effect: Effect, links, gain: float, progress: bool, max_samples: int) -> None:
     """`effect` added to v, v tracked again and the step recorded."""
     add_tracked_all([(v, effect)], errors(*v.current), links, gain, progress, max_samples)
@@ -136,10 +147,9 @@ def _moved(s: Subject, first: Misalignment, axis: MissingDof, other: str, links,
                                                    f"{axis.target} is no longer needed ({why_not})"]))
         s.rejected.append(e)
     moved.notes = "; ".join(filter(None, [moved.notes, (
-        f"in place of a misalignment of {first.target} and a missing axis at {axis.target} (moving over "
-        f"{', '.join(f'{math.degrees(x):.1f}' for x in axis.params['angle_range'])} deg): the joints cannot turn the two "
+        f"in place of a misalignment of {first.target} and {moving_over(axis)}: the joints cannot turn the two "
         f"segments against each other about that axis, and a turn on the wrong side of them asks for one moving "
         f"with the joint")]))
-    s.recording, s.urdf, s.model, s.analysis, s.steps = v.recording, v.urdf, v.model, v.analysis, v.steps
+    take(s, v)
     say(f"{first.kind} at {first.target} and the axis at {axis.target} replaced by {what}")
     return True

@@ -28,7 +28,7 @@ from typing import Callable
 import torch
 
 from ...method import so3
-from .crossing import add_tracked, fitted, rebuilt
+from .crossing import add_tracked, fitted, rebuilt, take
 from .joints import JointLimit, joint_groups
 from .placement import Misalignment
 from .result import WORSE, errors
@@ -96,7 +96,7 @@ def _turned(s: Subject, limit: JointLimit, kept: Misalignment, side: float, link
                                                        f"about the joint's axis explains it, within the joint's range"]))
     kept.notes = "; ".join(filter(None, [kept.notes, f"completed about {limit.target}'s axis, in place of its limit"]))
     s.rejected += [limit, kept]
-    s.recording, s.urdf, s.model, s.analysis, s.steps = v.recording, v.urdf, v.model, v.analysis, v.steps
+    take(s, v)
     say(f"{limit.summary()} replaced by a turn of the {link} sensor about the joint's axis "
         f"({math.degrees(delta):+.1f} deg)")
     return True

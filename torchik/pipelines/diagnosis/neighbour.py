@@ -22,7 +22,7 @@ from __future__ import annotations
 from typing import Callable
 
 from .analysis import link_summary
-from .crossing import add_tracked, add_tracked_all, fitted, rebuilt
+from .crossing import add_tracked, add_tracked_all, fitted, rebuilt, take
 from .placement import MISALIGNMENT_FLOOR, Misalignment
 from .result import errors
 from .subject import Subject, analyse_subjects
@@ -84,7 +84,7 @@ def _move(s: Subject, first: Misalignment, others: list[str], links, gain: float
     s.rejected.append(first)
     effect.notes = "; ".join(filter(None, [effect.notes, f"in place of a {first.kind} at {first.target}, which "
                                                          f"took a share of its residual across their joint"]))
-    s.recording, s.urdf, s.model, s.analysis, s.steps = v.recording, v.urdf, v.model, v.analysis, v.steps
+    take(s, v)
     say(f"{first.kind} at {first.target} moved to {other} ({first.error} {before:.4g} -> {after:.4g})")
     return True
 
