@@ -89,7 +89,7 @@ def _other_projection(s: Subject, axis: MissingDof, side: str, shared: bool | No
     """The subject without `axis` and with `side`'s drift at the rate the other kind's fit gives it
     (`shared`: the kind fitted first; None where none could be, and the drift its gyro does not share is
     fitted), of the kind its own gyro says, tracked; None for the drift where that kind cannot be
-    fitted or its rate is under the drift's floor.
+    fitted, its rate is under the drift's floor or beyond a sensor's.
 
     The two kinds differ in whether the tracker's velocity target carries the drift (drift.fit_drifts),
     but at the tracker's gain a drift of a degree a second lags its orientation target by rate / K, a
@@ -106,7 +106,9 @@ def _other_projection(s: Subject, axis: MissingDof, side: str, shared: bool | No
     found = [c for c in v.candidates(("heading_drift",), target=side, like=other) if c.fit is not None]
     if not found or found[0].below_floor(float(torch.diff(v.current[0].time).median())):
         return v, None
-    moved, _ = v.adopted(found[0])
+    moved, implausible = v.adopted(found[0])
+    if implausible:
+        return v, None
     moved = copy.deepcopy(moved)
     derived = bool(moved.params.get("derived"))
     shares = derived or float(moved.params.get("own_gyro_score", 0.0)) <= 0.0
