@@ -37,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
 import sensor_physics  # noqa: E402
 
 LINKS = TRACKED_LINKS["human48"]
-# neither the tuning seeds (0-199, 600-609) nor the studies' (1000-1899, 2000-2899, 3000-3899); drawn
+# neither the tuning seeds (0-199, 600-609) nor the studies' (1000-5899, by the thousand); drawn
 # for the link its one biased sensor is on, the right hand
 HAND_SEED = 7348
 UPPER_ARM_SEEDS = {7320: "LeftUpperArm", 7388: "RightUpperArm"}  # drawn alike, for their upper arms
@@ -49,6 +49,7 @@ def _subject(seed: int):
     recording, injected, info = sensor_physics.generate(seed, "tilt_filter_bias", 1, LINKS, duration=8.0,
                                                         rate=100.0, reference=None)
     return tracked_subject(recording, urdf), recording, injected[0], info
+
 
 def _simulated_heading_rate(recording, info, link: str) -> float:
     """deg/s: the rate at which the link's reported heading turns against its true one (a line fitted

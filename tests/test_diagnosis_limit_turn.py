@@ -44,8 +44,6 @@ JOINT = "jLeftC7Shoulder_rotx"
 TURN = 8.0  # deg, about each of the two axes
 
 
-
-
 def _limit_added(s: Subject) -> JointLimit:
     """The joint's limit candidate fitted and added, as the loop would."""
     return added(s, "joint_limit", JOINT)

@@ -45,6 +45,7 @@ def _subject(turn_deg: float) -> Subject:
     R[:, i] = R[:, i] @ rotation_about(np.array([0.0, 0.0, 1.0]), np.array([math.radians(turn_deg)]))[0]
     return tracked_subject(replace(recording, orientation=R), urdf)
 
+
 def test_a_turn_kept_on_l3_moves_to_the_turned_t12(one_thread):
     s = _subject(TURN)
     added(s, "misalignment", "L3")

@@ -40,9 +40,16 @@ def axis_as_drift(s: Subject, axis: MissingDof, links, gain: float, threshold: f
     biased = {e.target for e in s.effects if isinstance(e, GyroBias)}
     drifting = {e.target for e in s.effects if e.kind == "heading_drift"}
     sides = sorted((axis.params["child"], axis.params["parent"]), key=lambda x: x not in biased)
-    for side in (x for x in sides if x not in drifting and x in links):
+    without = rebuilt(s, (axis,))
+    analyse_subjects([without], links, gain, progress, max_samples)
+
+    def unturned() -> Subject:  # s without the axis, tracked once: each try adds its drift to a copy
         v = rebuilt(s, (axis,))
-        analyse_subjects([v], links, gain, progress, max_samples)
+        v.analysis = without.analysis
+        return v
+
+    for side in (x for x in sides if x not in drifting and x in links):
+        v = unturned()
         # not calibrated on how its gains scatter: a drift carried into an arm's chain shows at the elbow
         # more in some postures than in others; whether the axis is still needed with it decides
         drift, why = fitted(v, "heading_drift", side, threshold, links, calibrated=False)
@@ -56,8 +63,9 @@ def axis_as_drift(s: Subject, axis: MissingDof, links, gain: float, threshold: f
                 return True
             say(f"the axis at {axis.target} stays: with {drift.summary()}, it is still significant "
                 f"(score {still.score:.0f})")
-        v, moved = _other_projection(s, axis, side, None if drift is None else bool(drift.params.get("gyro_shares")),
-                                     links, gain, progress, max_samples)
+        v = unturned()
+        moved = _other_projection(v, side, None if drift is None else bool(drift.params.get("gyro_shares")), links,
+                                  gain, progress, max_samples)
         if moved is None:
             continue
         still, why_not = fitted(v, "missing_dof", axis.target, threshold, links)
@@ -84,12 +92,14 @@ def _adopt(s: Subject, v: Subject, axis: MissingDof, drift: Effect, side: str, b
     say(f"the axis at {axis.target} replaced by {drift.summary()}")
 
 
-def _other_projection(s: Subject, axis: MissingDof, side: str, shared: bool | None, links, gain: float,
-                      progress: bool, max_samples: int) -> tuple[Subject, Effect | None]:
-    """The subject without `axis` and with `side`'s drift at the rate the other kind's fit gives it
-    (`shared`: the kind fitted first; None where none could be, and the drift its gyro does not share is
-    fitted), of the kind its own gyro says, tracked; None for the drift where that kind cannot be
-    fitted, its rate is under the drift's floor or beyond a sensor's.
+def _other_projection(v: Subject, side: str, shared: bool | None, links, gain: float, progress: bool,
+                      max_samples: int) -> Effect | None:
+    """`side`'s drift added to v (the subject without the axis, analysed) at the rate the other kind's
+    fit gives it (`shared`: the kind fitted first; None where none could be, and the drift its gyro
+    does not share is fitted), of the kind its own gyro says, and v tracked; None, and v as it was,
+    where that kind cannot be fitted, its rate is under the drift's floor or beyond a sensor's. Given
+    the kind the gyro says, the drift keeps that kind's tilt weighting (drift.tilt_weight), though its
+    rate was fitted at a constant weight: on a hanging upper arm the weight stays within 0.87-1.
 
     The two kinds differ in whether the tracker's velocity target carries the drift (drift.fit_drifts),
     but at the tracker's gain a drift of a degree a second lags its orientation target by rate / K, a
@@ -100,18 +110,16 @@ def _other_projection(s: Subject, axis: MissingDof, side: str, shared: bool | No
     with which the elbow's axis is no longer needed. The kind stays the gyro's word: its disagreement
     with its orientations about the vertical (own_gyro_score above 0: e = -rate z, the gyro does not
     share it)."""
-    v = rebuilt(s, (axis,))
-    analyse_subjects([v], links, gain, progress, max_samples)
     other = HeadingDrift("heading_drift", side, dict(gyro_shares=shared is not None and not shared))
     found = [c for c in v.candidates(("heading_drift",), target=side, like=other) if c.fit is not None]
     if not found or found[0].below_floor(float(torch.diff(v.current[0].time).median())):
-        return v, None
+        return None
     moved, implausible = v.adopted(found[0])
     if implausible:
-        return v, None
+        return None
     moved = copy.deepcopy(moved)
     derived = bool(moved.params.get("derived"))
     shares = derived or float(moved.params.get("own_gyro_score", 0.0)) <= 0.0
     moved.params.update(gyro_shares=shares, tilt=shares and not derived)
     add_tracked(v, moved, links, gain, progress, max_samples)
-    return v, moved
+    return moved

@@ -30,7 +30,7 @@ from ..evaluation import link_motion
 from . import elimination
 from .analysis import Analysis, analyse, orientation_residual, sequence_of, track
 from .chunks import Chunking
-from .subject import Subject, analyse_subjects
+from .subject import Subject, analyse_subjects, one_of
 
 VISIBLE = 1.0  # deg
 TRANSIENT = 2.0  # s, the tracker's start left out
@@ -109,14 +109,8 @@ def tracked(variants: Sequence[Subject], links, gain: float, progress: bool) -> 
         angle = torch.where(valid, torch.asin(r.norm(dim=-1).clamp(max=1.0)), torch.nan)
         for b, k in enumerate(members):
             out[k] = Tracked(sequence.time, model.joint_names, trajectory.joint_positions[:, b],
-                             trajectory.base_rotation[:, b], links, angle[:, b], _one(trajectory, b))
+                             trajectory.base_rotation[:, b], links, angle[:, b], one_of(trajectory, b))
     return [t for t in out if t is not None]
-
-
-def _one(t: Trajectory, b: int) -> Trajectory:
-    """Subject b of a batch's trajectory, as a batch of one."""
-    return Trajectory(t.time, t.base_position[:, b:b + 1], t.base_rotation[:, b:b + 1], t.joint_positions[:, b:b + 1],
-                      t.velocity[:, b:b + 1])
 
 
 def drop_invisible(subjects: Sequence[Subject], links, gain: float, progress: bool, max_samples: int,

@@ -122,6 +122,10 @@ def analyse_subjects(subjects: list[Subject], links, gain: float, progress: bool
 
 def trajectory_of(analysis: Analysis, b: int) -> Trajectory:
     """Subject b's trajectory of a batch's analysis, as a batch of one."""
-    t = analysis.trajectory
+    return one_of(analysis.trajectory, b)
+
+
+def one_of(t: Trajectory, b: int) -> Trajectory:
+    """Subject b of a batch's trajectory [T,B,...], as a batch of one [T,1,...]."""
     return Trajectory(t.time, t.base_position[:, b:b + 1], t.base_rotation[:, b:b + 1], t.joint_positions[:, b:b + 1],
                       t.velocity[:, b:b + 1])
